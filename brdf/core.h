@@ -1,0 +1,253 @@
+// brdfkit core: vector types, frame helpers, parameter tables and the
+// run-time model interface shared by every BRDF model.
+//
+// Conventions (see README "Conventions"):
+//  - local shading frame, z is the surface normal;
+//  - wi points towards the light, wo towards the detector, both away from
+//    the surface;
+//  - Eval returns f_r(wi, wo) in 1/sr, per RGB channel, WITHOUT the cosine;
+//  - a direction with cos(theta) <= 0 (at or below the horizon) gives f_r = 0.
+//
+// Everything is templated on the scalar T so the same code runs with double,
+// float and ceres::Jet. Math is called unqualified (using std::sqrt; sqrt(x))
+// so that the Jet overloads are found by argument-dependent lookup.
+#pragma once
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include <cmath>
+#include <cstddef>
+#include <limits>
+#include <map>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <type_traits>
+#include <vector>
+
+namespace brdfkit {
+
+template <typename T>
+using Vec3 = Eigen::Matrix<T, 3, 1>;
+template <typename T>
+using Rgb = Eigen::Array<T, 3, 1>;
+
+inline constexpr double kPi = 3.14159265358979323846;
+inline constexpr double kInvPi = 0.31830988618379067154;
+
+// The plain value of a scalar: itself for float/double, the value part of an
+// automatic-differentiation number (anything with a member `a`, as ceres::Jet).
+inline double Value(double x) { return x; }
+inline double Value(float x) { return x; }
+template <typename J>
+  requires requires(const J& j) { j.a; }
+inline double Value(const J& j) {
+  return Value(j.a);
+}
+
+template <typename T>
+inline constexpr bool kIsFloat = std::is_same_v<T, float>;
+
+template <typename T>
+inline T CosTheta(const Vec3<T>& w) { return w.z(); }
+template <typename T>
+inline T Cos2Theta(const Vec3<T>& w) { return w.z() * w.z(); }
+// sin^2 from the tangential components, exact near the normal where
+// 1 - cos^2 would cancel.
+template <typename T>
+inline T Sin2Theta(const Vec3<T>& w) { return w.x() * w.x() + w.y() * w.y(); }
+
+// sqrt that returns 0 for x <= 0: negative arguments only come from
+// rounding, and the derivative of sqrt at 0 is infinite (fits need it finite).
+template <typename T>
+inline T SafeSqrt(const T& x) {
+  using std::sqrt;
+  if (x <= T(0)) return T(0);
+  return sqrt(x);
+}
+
+// x^n for x >= 0 through exp(n log x), with 0 where x <= 0: pow(0, n) has a
+// non-finite derivative with respect to n, and every use here is a lobe that
+// vanishes where its base does.
+template <typename T>
+inline T PowLobe(const T& x, const T& n) {
+  using std::exp;
+  using std::log;
+  if (x <= T(0)) return T(0);
+  return exp(n * log(x));
+}
+
+// Mirror direction of w about the normal.
+template <typename T>
+inline Vec3<T> Reflect(const Vec3<T>& w) { return Vec3<T>(-w.x(), -w.y(), w.z()); }
+
+// Unnormalised half vector wi + wo and its normalised form. When wi = -wo
+// the half vector is undefined; both directions must then be in the upper
+// hemisphere, which every caller checks first, so |wi + wo| >= 2 mu > 0.
+template <typename T>
+inline Vec3<T> HalfVector(const Vec3<T>& wi, const Vec3<T>& wo) {
+  using std::sqrt;
+  Vec3<T> h = wi + wo;
+  return h / sqrt(h.squaredNorm());
+}
+
+// Both directions strictly above the horizon.
+template <typename T>
+inline bool SameUpperHemisphere(const Vec3<T>& wi, const Vec3<T>& wo) {
+  return wi.z() > T(0) && wo.z() > T(0);
+}
+
+// Orthonormal basis with z along n (Duff et al. 2017, "Building an
+// orthonormal basis, revisited", branch-free version of Frisvad's).
+template <typename T>
+inline void BasisFromZ(const Vec3<T>& n, Vec3<T>& b1, Vec3<T>& b2) {
+  using std::copysign;
+  const T sign = copysign(T(1), n.z());
+  const T a = T(-1) / (sign + n.z());
+  const T b = n.x() * n.y() * a;
+  b1 = Vec3<T>(T(1) + sign * n.x() * n.x() * a, sign * b, -sign * n.x());
+  b2 = Vec3<T>(b, sign + n.y() * n.y() * a, -n.y());
+}
+
+// Cosine-weighted hemisphere sample (Malley's method, concentric disc).
+template <typename T>
+inline Vec3<T> SampleCosineHemisphere(double u1, double u2) {
+  using std::cos;
+  using std::sin;
+  using std::sqrt;
+  const double ox = 2.0 * u1 - 1.0, oy = 2.0 * u2 - 1.0;
+  double r = 0, phi = 0;
+  if (ox != 0.0 || oy != 0.0) {
+    if (std::abs(ox) > std::abs(oy)) {
+      r = ox;
+      phi = kPi / 4 * (oy / ox);
+    } else {
+      r = oy;
+      phi = kPi / 2 - kPi / 4 * (ox / oy);
+    }
+  }
+  const double x = r * std::cos(phi), y = r * std::sin(phi);
+  const double z = std::sqrt(std::max(0.0, 1.0 - x * x - y * y));
+  return Vec3<T>(T(x), T(y), T(z));
+}
+
+// Sample of a cos^n lobe around the unit axis `axis`: density
+// (n + 1) / (2 pi) cos^n(angle to axis) over the sphere of directions.
+template <typename T>
+inline Vec3<T> SampleCosinePowerLobe(const Vec3<T>& axis, const T& n, double u1, double u2) {
+  using std::cos;
+  using std::pow;
+  using std::sin;
+  using std::sqrt;
+  const double nv = Value(n);
+  // u1 -> cos^(n+1) is uniform; 1 - u1 keeps u1 = 0 away from cos = 0.
+  const double c = std::pow(1.0 - u1, 1.0 / (nv + 1.0));
+  const double s = std::sqrt(std::max(0.0, 1.0 - c * c));
+  const double phi = 2.0 * kPi * u2;
+  Vec3<T> b1, b2;
+  BasisFromZ(axis, b1, b2);
+  return b1 * T(s * std::cos(phi)) + b2 * T(s * std::sin(phi)) + axis * T(c);
+}
+
+template <typename T>
+inline T CosinePowerLobePdf(const Vec3<T>& axis, const T& n, const Vec3<T>& w) {
+  return (n + T(1)) * T(0.5 * kInvPi) * PowLobe(T(axis.dot(w)), n);
+}
+
+// ---------------------------------------------------------------------------
+// Parameter tables.
+
+struct ParamInfo {
+  std::string name;
+  double lower = 0;
+  double upper = 1;
+  double default_value = 0;
+  bool colour = false;      // one value per RGB channel
+  std::string meaning;
+  // Scale on which a fit moves the parameter: roughness and exponents span
+  // orders of magnitude and converge only in log space.
+  enum class Scale { kLinear, kLog } scale = Scale::kLinear;
+};
+
+// Static description of a model (one lobe or a sum of lobes).
+struct ModelInfo {
+  std::string name;
+  std::string summary;                 // one line: paper and what it is
+  std::vector<ParamInfo> params;
+  bool reciprocal = true;              // f(wi, wo) == f(wo, wi) by construction
+  bool energy_conserving = false;      // albedo <= 1 for all wo, by construction, within bounds
+  std::vector<std::string> settings;   // non-numeric construction options (e.g. "path")
+
+  // Packed layout: colour parameters take 3 consecutive slots (r, g, b).
+  std::size_t PackedSize() const {
+    std::size_t n = 0;
+    for (const auto& p : params) n += p.colour ? 3 : 1;
+    return n;
+  }
+  std::size_t Offset(std::size_t param_index) const {
+    std::size_t n = 0;
+    for (std::size_t i = 0; i < param_index; ++i) n += params[i].colour ? 3 : 1;
+    return n;
+  }
+  std::vector<double> Defaults() const {
+    std::vector<double> v;
+    for (const auto& p : params)
+      for (int c = 0; c < (p.colour ? 3 : 1); ++c) v.push_back(p.default_value);
+    return v;
+  }
+};
+
+// Options given when a model is built (file paths and the like).
+using Settings = std::map<std::string, std::string>;
+
+class ModelError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// A sampled direction wi with its solid-angle density. valid is false when
+// the sample falls below the horizon (a lobe that reaches past it); such a
+// sample carries no weight and the model's pdf integrates over the upper
+// hemisphere to the sampled fraction.
+template <typename T>
+struct BsdfSample {
+  Vec3<T> wi = Vec3<T>(T(0), T(0), T(1));
+  T pdf = T(0);
+  bool valid = false;
+};
+
+// Optional microfacet view: the distribution D(wm) and, for Smith models,
+// the masking function G1(w, wm). Used by the checks (normalisation of D and
+// the weak white furnace test).
+template <typename T>
+class MicrofacetView {
+ public:
+  virtual ~MicrofacetView() = default;
+  virtual T D(const T* p, const Vec3<T>& wm) const = 0;
+  virtual bool HasSmithG1() const = 0;
+  virtual T G1(const T* p, const Vec3<T>& w, const Vec3<T>& wm) const = 0;
+};
+
+// Run-time interface for one scalar type. Parameters are the packed vector of
+// ModelInfo (colour parameters as r, g, b).
+template <typename T>
+class Bxdf {
+ public:
+  virtual ~Bxdf() = default;
+  virtual const ModelInfo& Info() const = 0;
+  // f_r(wi, wo) in 1/sr per channel, without the cosine.
+  virtual Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const = 0;
+  // Importance sample wi given wo; pdf with respect to solid angle.
+  virtual BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const = 0;
+  // Density of Sample, with respect to solid angle.
+  virtual T Pdf(const T* p, const Vec3<T>& wo, const Vec3<T>& wi) const = 0;
+  // Relative weight for choosing this lobe in a sum (about its albedo).
+  virtual double SampleWeight(const double* p) const = 0;
+  virtual const MicrofacetView<T>* Microfacet() const { return nullptr; }
+};
+
+// Luminance-like mean of a colour parameter, for lobe selection weights.
+inline double MeanRgb(const double* c) { return (c[0] + c[1] + c[2]) / 3.0; }
+
+}  // namespace brdfkit

@@ -1,0 +1,53 @@
+// Lambert: the ideal diffuse reflector, f_r = rho / pi.
+//
+// | param  | range  | default | meaning                         |
+// |--------|--------|---------|---------------------------------|
+// | albedo | [0, 1] | 0.5     | directional albedo (colour)     |
+//
+// Lambert 1760, "Photometria". E(wo) = rho for every wo. Sampling is
+// cosine-weighted (pdf = cos_theta_i / pi), exact importance sampling.
+#pragma once
+
+#include "brdf/core.h"
+
+namespace brdfkit {
+
+struct Lambert {
+  explicit Lambert(const Settings& = {}) {}
+
+  static ModelInfo Info() {
+    ModelInfo info;
+    info.name = "lambert";
+    info.summary = "ideal diffuse reflector rho/pi (Lambert 1760)";
+    info.params = {{"albedo", 0.0, 1.0, 0.5, true, "directional albedo rho"}};
+    info.reciprocal = true;
+    info.energy_conserving = true;
+    return info;
+  }
+
+  template <typename T>
+  Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const {
+    if (!SameUpperHemisphere(wi, wo)) return Rgb<T>::Constant(T(0));
+    return Rgb<T>(p[0], p[1], p[2]) * T(kInvPi);
+  }
+
+  template <typename T>
+  BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const {
+    BsdfSample<T> s;
+    if (wo.z() <= T(0)) return s;
+    s.wi = SampleCosineHemisphere<T>(u1, u2);
+    s.pdf = Pdf(p, wo, s.wi);
+    s.valid = s.pdf > T(0);
+    return s;
+  }
+
+  template <typename T>
+  T Pdf(const T*, const Vec3<T>& wo, const Vec3<T>& wi) const {
+    if (!SameUpperHemisphere(wi, wo)) return T(0);
+    return wi.z() * T(kInvPi);
+  }
+
+  double SampleWeight(const double* p) const { return MeanRgb(p); }
+};
+
+}  // namespace brdfkit

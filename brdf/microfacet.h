@@ -1,0 +1,363 @@
+// Microfacet theory: GGX (Trowbridge-Reitz) and Beckmann distributions,
+// isotropic and anisotropic; Smith masking-shadowing, separable and
+// height-correlated; Fresnel (Schlick, exact dielectric, conductor); and the
+// Cook-Torrance style reflection model built from them.
+//
+//   f_r(wi, wo) = D(wh) G2(wi, wo, wh) F(wi.wh) / (4 cos_theta_i cos_theta_o)
+//                 (Walter et al. 2007, "Microfacet Models for Refraction
+//                  through Rough Surfaces", eq. 20)
+//
+//   D_GGX(m)  = 1 / (pi ax ay (mx^2/ax^2 + my^2/ay^2 + mz^2)^2)
+//               (Walter 2007 eq. 33; anisotropic form: Heitz 2014, eq. 82)
+//   D_Beck(m) = exp(-(mx^2/ax^2 + my^2/ay^2) / mz^2) / (pi ax ay mz^4)
+//               (Walter 2007 eq. 25; Heitz 2014 eq. 80)
+//   Lambda_GGX(w)  = (sqrt(1 + a^2 tan^2) - 1) / 2         (Heitz 2014 eq. 86)
+//   Lambda_Beck(w) = (erf(v) - 1) / 2 + exp(-v^2) / (2 v sqrt(pi)),
+//                    v = 1 / (a tan)                       (Heitz 2014 eq. 83)
+//     with a^2 tan^2 = (ax^2 wx^2 + ay^2 wy^2) / wz^2 for anisotropic alpha.
+//   G1 = chi+(w.m) / (1 + Lambda(w))                        (Heitz 2014 eq. 43)
+//   G2 separable = G1(wi) G1(wo); height-correlated = 1 / (1 + L(wi) + L(wo))
+//                                                           (Heitz 2014 eq. 99)
+//
+// Sampling: GGX samples the distribution of visible normals (Heitz 2018,
+// "Sampling the GGX Distribution of Visible Normals"); Beckmann samples
+// D(m) cos(theta_m) through its Gaussian slope distribution (Walter 2007
+// eq. 28, written in slope space). pdf(wi) = pdf(wm) / (4 |wo.wm|).
+// Samples below the horizon are returned invalid, so the pdf integrates over
+// the upper hemisphere to the fraction of samples that stay above it.
+//
+// Approximation: single scattering only (energy is lost at high roughness;
+// the albedo tables of validate/ give the compensation).
+#pragma once
+
+#include "brdf/core.h"
+
+#include <string>
+
+namespace brdfkit {
+
+// --- distributions ---------------------------------------------------------
+
+template <typename T>
+inline T DGgx(const Vec3<T>& wm, const T& ax, const T& ay) {
+  if (wm.z() <= T(0)) return T(0);  // back-facing microfacets do not exist
+  const T e = wm.x() * wm.x() / (ax * ax) + wm.y() * wm.y() / (ay * ay) + wm.z() * wm.z();
+  return T(1) / (T(kPi) * ax * ay * e * e);
+}
+
+template <typename T>
+inline T DBeckmann(const Vec3<T>& wm, const T& ax, const T& ay) {
+  using std::exp;
+  if (wm.z() <= T(0)) return T(0);  // back-facing microfacets do not exist
+  const T z2 = wm.z() * wm.z();
+  const T tan2_term = (wm.x() * wm.x() / (ax * ax) + wm.y() * wm.y() / (ay * ay)) / z2;
+  return exp(-tan2_term) / (T(kPi) * ax * ay * z2 * z2);
+}
+
+// a^2 tan^2(theta) for projected roughness along w (Heitz 2014 eq. 80 ff.).
+template <typename T>
+inline T Alpha2Tan2(const Vec3<T>& w, const T& ax, const T& ay) {
+  return (ax * ax * w.x() * w.x() + ay * ay * w.y() * w.y()) / (w.z() * w.z());
+}
+
+template <typename T>
+inline T LambdaGgx(const Vec3<T>& w, const T& ax, const T& ay) {
+  using std::sqrt;
+  const T a2t2 = Alpha2Tan2(w, ax, ay);
+  // (sqrt(1 + x) - 1) / 2 written without the cancellation near x = 0.
+  return a2t2 / (T(2) * (T(1) + sqrt(T(1) + a2t2)));
+}
+
+template <typename T>
+inline T LambdaBeckmann(const Vec3<T>& w, const T& ax, const T& ay) {
+  using std::erfc;
+  using std::exp;
+  using std::sqrt;
+  const T a2t2 = Alpha2Tan2(w, ax, ay);
+  if (a2t2 <= T(0)) return T(0);  // w along the normal: nothing is masked
+  const T v = T(1) / sqrt(a2t2);
+  // erf(v) - 1 = -erfc(v) keeps the small difference accurate for large v.
+  return (exp(-v * v) / (v * T(1.7724538509055160273)) - erfc(v)) / T(2);
+}
+
+// --- Fresnel ----------------------------------------------------------------
+
+template <typename T>
+inline T FresnelSchlick(const T& f0, const T& cos_theta) {
+  const T c = cos_theta > T(0) ? cos_theta : T(0);
+  const T m = T(1) - c;
+  const T m2 = m * m;
+  return f0 + (T(1) - f0) * m2 * m2 * m;
+}
+
+// Unpolarised Fresnel reflectance of a dielectric interface with relative
+// index eta (transmitted over incident), light arriving at cos_theta.
+template <typename T>
+inline T FresnelDielectric(const T& eta, const T& cos_theta) {
+  using std::sqrt;
+  const T c = cos_theta > T(0) ? cos_theta : T(0);
+  const T sin2_t = (T(1) - c * c) / (eta * eta);
+  if (sin2_t >= T(1)) return T(1);  // total internal reflection (eta < 1)
+  const T cos_t = sqrt(T(1) - sin2_t);
+  const T rs = (c - eta * cos_t) / (c + eta * cos_t);
+  const T rp = (eta * c - cos_t) / (eta * c + cos_t);
+  return (rs * rs + rp * rp) / T(2);
+}
+
+// Unpolarised Fresnel reflectance of a conductor with complex index eta + i k,
+// real-valued form of the complex Fresnel equations.
+template <typename T>
+inline T FresnelConductor(const T& eta, const T& k, const T& cos_theta) {
+  const T c = cos_theta > T(0) ? cos_theta : T(0);
+  const T c2 = c * c;
+  const T s2 = T(1) - c2;
+  const T t0 = eta * eta - k * k - s2;
+  const T a2b2 = SafeSqrt(T(t0 * t0 + T(4) * eta * eta * k * k));
+  const T a = SafeSqrt(T((a2b2 + t0) / T(2)));
+  const T t1 = a2b2 + c2;
+  const T t2 = T(2) * a * c;
+  // At c = 0 and a = 0 together (k = 0, eta <= 1) t1 + t2 = 0: that is
+  // total reflection.
+  if (t1 + t2 <= T(0)) return T(1);
+  const T rs = (t1 - t2) / (t1 + t2);
+  const T t3 = c2 * a2b2 + s2 * s2;
+  const T t4 = t2 * s2;
+  const T rp = t3 + t4 > T(0) ? rs * (t3 - t4) / (t3 + t4) : rs;
+  return (rs + rp) / T(2);
+}
+
+// --- the model ---------------------------------------------------------------
+
+enum class MicrofacetDistribution { kGgx, kBeckmann };
+enum class SmithForm { kHeightCorrelated, kSeparable };
+enum class FresnelForm { kSchlick, kDielectric, kConductor };
+
+template <MicrofacetDistribution Dist, bool Aniso, SmithForm Smith, FresnelForm Fres>
+struct MicrofacetConfig {
+  static constexpr MicrofacetDistribution kDist = Dist;
+  static constexpr bool kAniso = Aniso;
+  static constexpr SmithForm kSmith = Smith;
+  static constexpr FresnelForm kFresnel = Fres;
+};
+
+// Derived supplies kName and kSummary; Config is a MicrofacetConfig.
+template <typename Derived, typename Config>
+class MicrofacetModel {
+ public:
+  static constexpr std::size_t kRoughnessSlots = Config::kAniso ? 2 : 1;
+
+  explicit MicrofacetModel(const Settings& = {}) {}
+
+  static ModelInfo Info() {
+    ModelInfo info;
+    info.name = Derived::kName;
+    info.summary = Derived::kSummary;
+    using S = ParamInfo::Scale;
+    const double lo = 1e-7, hi = 1.0;  // alpha < 1e-7 is a mirror to double precision
+    if constexpr (Config::kAniso) {
+      info.params.push_back({"alpha_x", lo, hi, 0.3, false, "roughness along x (alpha = r^2)", S::kLog});
+      info.params.push_back({"alpha_y", lo, hi, 0.1, false, "roughness along y", S::kLog});
+    } else {
+      info.params.push_back({"alpha", lo, hi, 0.3, false, "roughness (alpha = r^2)", S::kLog});
+    }
+    if constexpr (Config::kFresnel == FresnelForm::kSchlick) {
+      info.params.push_back({"f0", 0.0, 1.0, 1.0, true, "reflectance at normal incidence (1: F = 1)"});
+    } else if constexpr (Config::kFresnel == FresnelForm::kDielectric) {
+      info.params.push_back({"eta", 1.0, 4.0, 1.5, false, "relative refractive index"});
+    } else {
+      info.params.push_back({"eta", 0.01, 10.0, 0.2, true, "real part of the complex index"});
+      info.params.push_back({"k", 0.0, 20.0, 3.0, true, "imaginary part (extinction)"});
+    }
+    info.reciprocal = true;
+    // D G2 with F <= 1 integrates to at most 1 (weak white furnace).
+    info.energy_conserving = true;
+    return info;
+  }
+
+  template <typename T>
+  void Roughness(const T* p, T& ax, T& ay) const {
+    ax = p[0];
+    ay = Config::kAniso ? p[1] : p[0];
+  }
+
+  template <typename T>
+  T D(const T* p, const Vec3<T>& wm) const {
+    T ax, ay;
+    Roughness(p, ax, ay);
+    if constexpr (Config::kDist == MicrofacetDistribution::kGgx) return DGgx(wm, ax, ay);
+    else return DBeckmann(wm, ax, ay);
+  }
+
+  template <typename T>
+  T Lambda(const T* p, const Vec3<T>& w) const {
+    T ax, ay;
+    Roughness(p, ax, ay);
+    if constexpr (Config::kDist == MicrofacetDistribution::kGgx) return LambdaGgx(w, ax, ay);
+    else return LambdaBeckmann(w, ax, ay);
+  }
+
+  template <typename T>
+  T G1(const T* p, const Vec3<T>& w, const Vec3<T>& wm) const {
+    if (w.dot(wm) <= T(0) || w.z() <= T(0)) return T(0);  // back side of the facet
+    return T(1) / (T(1) + Lambda(p, w));
+  }
+
+  template <typename T>
+  T G2(const T* p, const Vec3<T>& wi, const Vec3<T>& wo, const Vec3<T>& wm) const {
+    if (wi.dot(wm) <= T(0) || wo.dot(wm) <= T(0)) return T(0);  // facet faces away from one side
+    if constexpr (Config::kSmith == SmithForm::kHeightCorrelated)
+      return T(1) / (T(1) + Lambda(p, wi) + Lambda(p, wo));
+    else
+      return G1(p, wi, wm) * G1(p, wo, wm);
+  }
+
+  template <typename T>
+  Rgb<T> Fresnel(const T* p, const T& cos_theta) const {
+    const T* f = p + kRoughnessSlots;
+    Rgb<T> F;
+    for (int c = 0; c < 3; ++c) {
+      if constexpr (Config::kFresnel == FresnelForm::kSchlick) F[c] = FresnelSchlick(f[c], cos_theta);
+      else if constexpr (Config::kFresnel == FresnelForm::kDielectric) F[c] = FresnelDielectric(f[0], cos_theta);
+      else F[c] = FresnelConductor(f[c], f[3 + c], cos_theta);
+    }
+    return F;
+  }
+
+  template <typename T>
+  Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const {
+    if (!SameUpperHemisphere(wi, wo)) return Rgb<T>::Constant(T(0));
+    const Vec3<T> wm = HalfVector(wi, wo);
+    const T scalar = D(p, wm) * G2(p, wi, wo, wm) / (T(4) * wi.z() * wo.z());
+    return Fresnel(p, T(wi.dot(wm))) * scalar;
+  }
+
+  template <typename T>
+  T Pdf(const T* p, const Vec3<T>& wo, const Vec3<T>& wi) const {
+    if (!SameUpperHemisphere(wi, wo)) return T(0);
+    const Vec3<T> wm = HalfVector(wi, wo);
+    if constexpr (Config::kDist == MicrofacetDistribution::kGgx) {
+      // Visible normals: D_wo(wm) = G1(wo, wm) D(wm) (wo.wm) / cos_theta_o.
+      return G1(p, wo, wm) * D(p, wm) / (T(4) * wo.z());
+    } else {
+      return D(p, wm) * wm.z() / (T(4) * wo.dot(wm));
+    }
+  }
+
+  template <typename T>
+  BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const {
+    BsdfSample<T> s;
+    if (wo.z() <= T(0)) return s;
+    double ax, ay;
+    {
+      T tx, ty;
+      Roughness(p, tx, ty);
+      ax = Value(tx);
+      ay = Value(ty);
+    }
+    const Eigen::Vector3d v(Value(wo.x()), Value(wo.y()), Value(wo.z()));
+    Eigen::Vector3d wm;
+    if constexpr (Config::kDist == MicrofacetDistribution::kGgx) {
+      // Heitz 2018, listing 1: stretch, sample the projected hemisphere, unstretch.
+      const Eigen::Vector3d vh = Eigen::Vector3d(ax * v.x(), ay * v.y(), v.z()).normalized();
+      const double lensq = vh.x() * vh.x() + vh.y() * vh.y();
+      const Eigen::Vector3d t1 =
+          lensq > 0 ? Eigen::Vector3d(-vh.y(), vh.x(), 0) / std::sqrt(lensq) : Eigen::Vector3d(1, 0, 0);
+      const Eigen::Vector3d t2 = vh.cross(t1);
+      const double r = std::sqrt(u1), phi = 2.0 * kPi * u2;
+      const double a = r * std::cos(phi);
+      double b = r * std::sin(phi);
+      const double s_blend = 0.5 * (1.0 + vh.z());
+      b = (1.0 - s_blend) * std::sqrt(std::max(0.0, 1.0 - a * a)) + s_blend * b;
+      const Eigen::Vector3d nh = a * t1 + b * t2 + std::sqrt(std::max(0.0, 1.0 - a * a - b * b)) * vh;
+      wm = Eigen::Vector3d(ax * nh.x(), ay * nh.y(), std::max(0.0, nh.z())).normalized();
+    } else {
+      // Beckmann slopes are Gaussian with variance alpha^2 / 2 per axis.
+      const double r = std::sqrt(-std::log(1.0 - u1));
+      const double phi = 2.0 * kPi * u2;
+      wm = Eigen::Vector3d(-ax * r * std::cos(phi), -ay * r * std::sin(phi), 1.0).normalized();
+    }
+    const Eigen::Vector3d wi = 2.0 * v.dot(wm) * wm - v;
+    if (wi.z() <= 0 || v.dot(wm) <= 0) return s;
+    s.wi = Vec3<T>(T(wi.x()), T(wi.y()), T(wi.z()));
+    s.pdf = Pdf(p, wo, s.wi);
+    s.valid = s.pdf > T(0);
+    return s;
+  }
+
+  double SampleWeight(const double* p) const {
+    const double* f = p + kRoughnessSlots;
+    if constexpr (Config::kFresnel == FresnelForm::kSchlick) {
+      return MeanRgb(f) + (1.0 - MeanRgb(f)) / 21.0;  // hemispherical average of Schlick
+    } else if constexpr (Config::kFresnel == FresnelForm::kDielectric) {
+      return FresnelDielectric(f[0], 0.5);
+    } else {
+      double s = 0;
+      for (int c = 0; c < 3; ++c) s += FresnelConductor(f[c], f[3 + c], 0.5);
+      return s / 3.0;
+    }
+  }
+};
+
+// --- presets ---------------------------------------------------------------
+
+using MfIso = MicrofacetConfig<MicrofacetDistribution::kGgx, false, SmithForm::kHeightCorrelated,
+                               FresnelForm::kSchlick>;
+
+struct Ggx : MicrofacetModel<Ggx, MfIso> {
+  using MicrofacetModel::MicrofacetModel;
+  static constexpr const char* kName = "ggx";
+  static constexpr const char* kSummary =
+      "GGX / Trowbridge-Reitz, height-correlated Smith, Schlick Fresnel (Walter 2007, Heitz 2014)";
+};
+
+struct Beckmann
+    : MicrofacetModel<Beckmann, MicrofacetConfig<MicrofacetDistribution::kBeckmann, false,
+                                                 SmithForm::kHeightCorrelated, FresnelForm::kSchlick>> {
+  using MicrofacetModel::MicrofacetModel;
+  static constexpr const char* kName = "beckmann";
+  static constexpr const char* kSummary =
+      "Beckmann, height-correlated Smith, Schlick Fresnel (Walter 2007, Heitz 2014)";
+};
+
+struct GgxAniso
+    : MicrofacetModel<GgxAniso, MicrofacetConfig<MicrofacetDistribution::kGgx, true,
+                                                 SmithForm::kHeightCorrelated, FresnelForm::kSchlick>> {
+  using MicrofacetModel::MicrofacetModel;
+  static constexpr const char* kName = "ggx_aniso";
+  static constexpr const char* kSummary = "anisotropic GGX, height-correlated Smith, Schlick Fresnel (Heitz 2014)";
+};
+
+struct BeckmannAniso
+    : MicrofacetModel<BeckmannAniso, MicrofacetConfig<MicrofacetDistribution::kBeckmann, true,
+                                                      SmithForm::kHeightCorrelated, FresnelForm::kSchlick>> {
+  using MicrofacetModel::MicrofacetModel;
+  static constexpr const char* kName = "beckmann_aniso";
+  static constexpr const char* kSummary =
+      "anisotropic Beckmann, height-correlated Smith, Schlick Fresnel (Heitz 2014)";
+};
+
+struct GgxSeparable
+    : MicrofacetModel<GgxSeparable, MicrofacetConfig<MicrofacetDistribution::kGgx, false, SmithForm::kSeparable,
+                                                     FresnelForm::kSchlick>> {
+  using MicrofacetModel::MicrofacetModel;
+  static constexpr const char* kName = "ggx_separable";
+  static constexpr const char* kSummary = "GGX with separable Smith G2 = G1 G1, Schlick Fresnel (Walter 2007)";
+};
+
+struct GgxDielectric
+    : MicrofacetModel<GgxDielectric, MicrofacetConfig<MicrofacetDistribution::kGgx, false,
+                                                      SmithForm::kHeightCorrelated, FresnelForm::kDielectric>> {
+  using MicrofacetModel::MicrofacetModel;
+  static constexpr const char* kName = "ggx_dielectric";
+  static constexpr const char* kSummary = "GGX reflection off a dielectric, exact Fresnel (Walter 2007)";
+};
+
+struct GgxConductor
+    : MicrofacetModel<GgxConductor, MicrofacetConfig<MicrofacetDistribution::kGgx, false,
+                                                     SmithForm::kHeightCorrelated, FresnelForm::kConductor>> {
+  using MicrofacetModel::MicrofacetModel;
+  static constexpr const char* kName = "ggx_conductor";
+  static constexpr const char* kSummary = "GGX conductor, complex-index Fresnel (Walter 2007)";
+};
+
+}  // namespace brdfkit

@@ -1,0 +1,302 @@
+// Run-time models: a parsed model specification ("ggx", "lambert+ggx",
+// "merl:file.binary"), its expanded parameter table, and Bxdf<T> evaluators
+// for any scalar type T (double, float, ceres::Jet).
+//
+// A model class M (one lobe) provides
+//   static ModelInfo Info();
+//   explicit M(const Settings&);
+//   template <class T> Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const;
+//   template <class T> BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const;
+//   template <class T> T Pdf(const T* p, const Vec3<T>& wo, const Vec3<T>& wi) const;
+// and optionally
+//   double SampleWeight(const double* p) const;                  // lobe choice in sums
+//   template <class T> T D(const T* p, const Vec3<T>& wm) const;  // microfacet models
+//   template <class T> T G1(const T* p, const Vec3<T>& w, const Vec3<T>& wm) const;  // Smith
+// and is listed once in registry.h.
+#pragma once
+
+#include "brdf/core.h"
+#include "brdf/registry.h"
+
+#include <algorithm>
+#include <sstream>
+#include <string_view>
+#include <utility>
+
+namespace brdfkit {
+
+namespace detail {
+
+template <typename M, typename T>
+class MicrofacetAdapter final : public MicrofacetView<T> {
+ public:
+  explicit MicrofacetAdapter(const M* m) : m_(m) {}
+  T D(const T* p, const Vec3<T>& wm) const override { return m_->template D<T>(p, wm); }
+  bool HasSmithG1() const override {
+    return requires(const M& m, const T* p, const Vec3<T>& w) { m.template G1<T>(p, w, w); };
+  }
+  T G1(const T* p, const Vec3<T>& w, const Vec3<T>& wm) const override {
+    if constexpr (requires(const M& m) { m.template G1<T>(p, w, wm); }) {
+      return m_->template G1<T>(p, w, wm);
+    } else {
+      throw ModelError(M::Info().name + " has no Smith masking function");
+    }
+  }
+
+ private:
+  const M* m_;
+};
+
+template <typename M, typename T>
+class ModelAdapter final : public Bxdf<T> {
+ public:
+  ModelAdapter(std::shared_ptr<const M> m, ModelInfo info) : m_(std::move(m)), info_(std::move(info)) {
+    if constexpr (requires(const M& mm, const T* p, const Vec3<T>& w) { mm.template D<T>(p, w); })
+      micro_ = std::make_unique<MicrofacetAdapter<M, T>>(m_.get());
+  }
+  const ModelInfo& Info() const override { return info_; }
+  Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const override {
+    return m_->template Eval<T>(p, wi, wo);
+  }
+  BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const override {
+    return m_->template Sample<T>(p, wo, u1, u2);
+  }
+  T Pdf(const T* p, const Vec3<T>& wo, const Vec3<T>& wi) const override {
+    return m_->template Pdf<T>(p, wo, wi);
+  }
+  double SampleWeight(const double* p) const override {
+    if constexpr (requires(const M& mm) { mm.SampleWeight(p); }) {
+      return m_->SampleWeight(p);
+    } else {
+      return 1.0;
+    }
+  }
+  const MicrofacetView<T>* Microfacet() const override { return micro_.get(); }
+
+ private:
+  std::shared_ptr<const M> m_;
+  ModelInfo info_;
+  std::unique_ptr<MicrofacetView<T>> micro_;
+};
+
+// Sum of lobes: f = sum_k f_k; sampling picks lobe k with probability
+// proportional to its SampleWeight and the pdf is the mixture density.
+template <typename T>
+class SumBxdf final : public Bxdf<T> {
+ public:
+  SumBxdf(std::vector<std::unique_ptr<Bxdf<T>>> lobes, std::vector<std::size_t> offsets, ModelInfo info)
+      : lobes_(std::move(lobes)), offsets_(std::move(offsets)), info_(std::move(info)) {}
+  const ModelInfo& Info() const override { return info_; }
+  Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const override {
+    Rgb<T> f = Rgb<T>::Constant(T(0));
+    for (std::size_t k = 0; k < lobes_.size(); ++k) f += lobes_[k]->Eval(p + offsets_[k], wi, wo);
+    return f;
+  }
+  BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const override {
+    const std::vector<double> w = Weights(p);
+    std::size_t k = 0;
+    double acc = 0;
+    for (; k + 1 < lobes_.size(); ++k) {
+      if (u1 < acc + w[k]) break;
+      acc += w[k];
+    }
+    // Reuse u1 inside the chosen lobe's interval; the clamp keeps it below 1
+    // when rounding puts it on the interval's end.
+    const double u1k = std::min((u1 - acc) / w[k], 1.0 - 1e-16);
+    BsdfSample<T> s = lobes_[k]->Sample(p + offsets_[k], wo, u1k, u2);
+    if (!s.valid) return s;
+    s.pdf = Pdf(p, wo, s.wi);
+    return s;
+  }
+  T Pdf(const T* p, const Vec3<T>& wo, const Vec3<T>& wi) const override {
+    const std::vector<double> w = Weights(p);
+    T pdf = T(0);
+    for (std::size_t k = 0; k < lobes_.size(); ++k)
+      if (w[k] > 0) pdf += T(w[k]) * lobes_[k]->Pdf(p + offsets_[k], wo, wi);
+    return pdf;
+  }
+  double SampleWeight(const double* p) const override {
+    double s = 0;
+    for (std::size_t k = 0; k < lobes_.size(); ++k) s += lobes_[k]->SampleWeight(p + offsets_[k]);
+    return s;
+  }
+
+ private:
+  std::vector<double> Weights(const T* p) const {
+    const std::size_t n = info_.PackedSize();
+    std::vector<double> pv(n);
+    for (std::size_t i = 0; i < n; ++i) pv[i] = Value(p[i]);
+    std::vector<double> w(lobes_.size());
+    double total = 0;
+    for (std::size_t k = 0; k < lobes_.size(); ++k) {
+      w[k] = std::max(0.0, lobes_[k]->SampleWeight(pv.data() + offsets_[k]));
+      total += w[k];
+    }
+    // All lobes black: sample them evenly so the pdf stays a density.
+    if (!(total > 0)) {
+      std::fill(w.begin(), w.end(), 1.0 / lobes_.size());
+      return w;
+    }
+    for (double& x : w) x /= total;
+    return w;
+  }
+
+  std::vector<std::unique_ptr<Bxdf<T>>> lobes_;
+  std::vector<std::size_t> offsets_;
+  ModelInfo info_;
+};
+
+template <std::size_t I = 0, typename F>
+bool ForEachModelType(F&& f) {
+  if constexpr (I < std::tuple_size_v<RegisteredModels>) {
+    using M = std::tuple_element_t<I, RegisteredModels>;
+    if (f(I, static_cast<M*>(nullptr))) return true;
+    return ForEachModelType<I + 1>(std::forward<F>(f));
+  }
+  return false;
+}
+
+}  // namespace detail
+
+// Static description of every registered model, in registration order.
+inline std::vector<ModelInfo> RegisteredModelInfos() {
+  std::vector<ModelInfo> out;
+  detail::ForEachModelType([&](std::size_t, auto* tag) {
+    out.push_back(std::remove_pointer_t<decltype(tag)>::Info());
+    return false;
+  });
+  return out;
+}
+
+// A parsed model specification. Copies share the loaded model data.
+class Model {
+ public:
+  // spec: "name", "name:setting" (the model's first setting, e.g. a path),
+  // or a sum "a+b+c" of those. settings apply to a single-lobe model.
+  static Model Parse(const std::string& spec, const Settings& settings = {}) {
+    Model m;
+    m.spec_ = spec;
+    std::vector<std::string> parts;
+    {
+      std::string cur;
+      for (char c : spec) {
+        if (c == '+') {
+          parts.push_back(cur);
+          cur.clear();
+        } else {
+          cur.push_back(c);
+        }
+      }
+      parts.push_back(cur);
+    }
+    if (spec.empty()) throw ModelError("empty model name (expected one of: " + KnownNames() + ")");
+    std::map<std::string, int> seen;
+    for (const std::string& part : parts) {
+      Lobe lobe;
+      std::string name = part, arg;
+      const auto colon = part.find(':');
+      if (colon != std::string::npos) {
+        name = part.substr(0, colon);
+        arg = part.substr(colon + 1);
+      }
+      if (name.empty())
+        throw ModelError("model '" + spec + "': empty lobe name in a sum (expected e.g. lambert+ggx)");
+      Settings s = parts.size() == 1 ? settings : Settings{};
+      bool found = detail::ForEachModelType([&](std::size_t index, auto* tag) {
+        using M = std::remove_pointer_t<decltype(tag)>;
+        const ModelInfo info = M::Info();
+        if (info.name != name) return false;
+        if (!arg.empty()) {
+          if (info.settings.empty())
+            throw ModelError("model '" + name + "' takes no ':' argument (got '" + arg + "')");
+          s[info.settings.front()] = arg;
+        }
+        for (const auto& [k, v] : s)
+          if (std::find(info.settings.begin(), info.settings.end(), k) == info.settings.end())
+            throw ModelError("model '" + name + "' has no setting '" + k + "'");
+        lobe.index = index;
+        lobe.info = info;
+        lobe.impl = std::make_shared<const M>(s);
+        return true;
+      });
+      if (!found)
+        throw ModelError("unknown model '" + name + "'" + (parts.size() > 1 ? " in '" + spec + "'" : "") +
+                         " (known models: " + KnownNames() + ")");
+      const int count = ++seen[name];
+      lobe.prefix = count == 1 ? name : name + "#" + std::to_string(count);
+      m.lobes_.push_back(std::move(lobe));
+    }
+    m.BuildInfo();
+    return m;
+  }
+
+  const ModelInfo& Info() const { return info_; }
+  const std::string& Spec() const { return spec_; }
+  std::size_t LobeCount() const { return lobes_.size(); }
+  const ModelInfo& LobeInfo(std::size_t k) const { return lobes_[k].info; }
+  std::size_t LobeOffset(std::size_t k) const { return offsets_[k]; }
+
+  template <typename T>
+  std::unique_ptr<Bxdf<T>> Make() const {
+    if (lobes_.size() == 1) return MakeLobe<T>(lobes_[0], info_);
+    std::vector<std::unique_ptr<Bxdf<T>>> parts;
+    for (const Lobe& l : lobes_) parts.push_back(MakeLobe<T>(l, l.info));
+    return std::make_unique<detail::SumBxdf<T>>(std::move(parts), offsets_, info_);
+  }
+
+  static std::string KnownNames() {
+    std::string s;
+    for (const ModelInfo& i : RegisteredModelInfos()) s += (s.empty() ? "" : ", ") + i.name;
+    return s;
+  }
+
+ private:
+  struct Lobe {
+    std::size_t index = 0;
+    std::string prefix;
+    ModelInfo info;
+    std::shared_ptr<const void> impl;
+  };
+
+  template <typename T>
+  static std::unique_ptr<Bxdf<T>> MakeLobe(const Lobe& l, const ModelInfo& info) {
+    std::unique_ptr<Bxdf<T>> out;
+    detail::ForEachModelType([&](std::size_t index, auto* tag) {
+      using M = std::remove_pointer_t<decltype(tag)>;
+      if (index != l.index) return false;
+      out = std::make_unique<detail::ModelAdapter<M, T>>(std::static_pointer_cast<const M>(l.impl), info);
+      return true;
+    });
+    return out;
+  }
+
+  void BuildInfo() {
+    if (lobes_.size() == 1) {
+      info_ = lobes_[0].info;
+      offsets_ = {0};
+      return;
+    }
+    info_ = ModelInfo{};
+    info_.name = spec_;
+    info_.reciprocal = true;
+    info_.energy_conserving = false;  // a sum can exceed 1 even if every lobe does not
+    std::size_t off = 0;
+    for (const Lobe& l : lobes_) {
+      offsets_.push_back(off);
+      off += l.info.PackedSize();
+      info_.reciprocal = info_.reciprocal && l.info.reciprocal;
+      info_.summary += (info_.summary.empty() ? "" : " + ") + l.info.name;
+      for (ParamInfo p : l.info.params) {
+        p.name = l.prefix + "." + p.name;
+        info_.params.push_back(p);
+      }
+    }
+  }
+
+  std::string spec_;
+  std::vector<Lobe> lobes_;
+  std::vector<std::size_t> offsets_;
+  ModelInfo info_;
+};
+
+}  // namespace brdfkit

@@ -1,0 +1,48 @@
+// Shared pieces of the command-line tool: model and parameter options,
+// direction parsing, errors.
+#pragma once
+
+#include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
+
+#include <string>
+#include <vector>
+
+#include "brdf/model.h"
+#include "brdf/params.h"
+
+namespace brdfkit::cli {
+
+// An error the user caused (bad option value, bad file): reported as
+// "brdfkit: error: <message>" with exit code 2.
+class UsageError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+struct ModelArgs {
+  std::string model;
+  std::string params;
+};
+
+void AddModelOptions(CLI::App* cmd, ModelArgs& args, bool required = true);
+
+struct LoadedModel {
+  Model model;
+  std::vector<double> params;
+};
+
+// Parses --model and --params (settings such as path= go to the model).
+LoadedModel LoadModel(const ModelArgs& args);
+
+// "x,y,z" (normalised) or, with degrees = true, "theta,phi" in degrees.
+Eigen::Vector3d ParseDirection(const std::string& text, bool degrees, const std::string& option);
+
+nlohmann::json ModelInfoJson(const ModelInfo& info);
+
+// Subcommands; each file cli/cmd_<name>.cpp defines one.
+void RegisterModels(CLI::App& app);
+void RegisterEval(CLI::App& app);
+void RegisterRun(CLI::App& app);
+
+}  // namespace brdfkit::cli

@@ -1,0 +1,23 @@
+// brdfkit: check, tabulate, synthesise and fit BRDFs.
+#include <cstdio>
+#include <exception>
+
+#include "cli/common.h"
+
+int main(int argc, char** argv) {
+  CLI::App app{"brdfkit: measure, check and fit BRDFs"};
+  app.require_subcommand(1);
+  app.set_version_flag("--version", "brdfkit " BRDFKIT_VERSION);
+  brdfkit::cli::RegisterModels(app);
+  brdfkit::cli::RegisterEval(app);
+  brdfkit::cli::RegisterRun(app);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "brdfkit: error: %s\n", e.what());
+    return 2;
+  }
+  return 0;
+}

@@ -1,0 +1,9 @@
+# Warning flags for brdfkit's own targets (not for consumers).
+add_library(brdfkit_warnings INTERFACE)
+target_compile_options(brdfkit_warnings INTERFACE
+  -Wall -Wextra -Wpedantic -Wshadow=local -Wnon-virtual-dtor
+  $<$<BOOL:${BRDFKIT_WERROR}>:-Werror>)
+if(BRDFKIT_SANITIZE)
+  target_compile_options(brdfkit_warnings INTERFACE -fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=all)
+  target_link_options(brdfkit_warnings INTERFACE -fsanitize=address,undefined)
+endif()
