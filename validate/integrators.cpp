@@ -297,19 +297,462 @@ Estimate GaussLegendreRule(const Problem& pb, const IntegrateOptions& o) {
   return e;
 }
 
+// ---------------------------------------------------------------------------
+// Deterministic adaptive rule: globally adaptive Gauss-Kronrod (7, 15)
+// cubature (Piessens et al. 1983, QUADPACK QAG; product form on rectangles)
+// on coordinates in which a narrow lobe has unit width and the horizon is an
+// end of every inner range.
+
 struct AdaptiveResult {
   Array3d value = Array3d::Zero();
   Array3d error = Array3d::Zero();
   std::int64_t evals = 0;
 };
 
-AdaptiveResult AdaptiveHalfVector(const Bxdf<double>&, const double*, const Vector3d&, double, double,
-                                  const IntegrateOptions&) {
-  throw std::logic_error("adaptive integration is not available in this build");
+// Gauss-Kronrod 15-point nodes (positive half) and weights; the Gauss
+// 7-point rule uses the odd-indexed nodes (QUADPACK qk15).
+constexpr double kXgk[8] = {0.991455371120812639206854697526329, 0.949107912342758524526189684047851,
+                            0.864864423359769072789712788640926, 0.741531185599394439863864773280788,
+                            0.586087235467691130294144845693013, 0.405845151377397166906606412076961,
+                            0.207784955007898467600689403773245, 0.0};
+constexpr double kWgk[8] = {0.022935322010529224963732008058970, 0.063092092629978553290700663189204,
+                            0.104790010322250183839876322541518, 0.140653259715525918745189590510238,
+                            0.169004726639267902826583426598550, 0.190350578064785409913256402421014,
+                            0.204432940075298892414161999234649, 0.209482141084727828012999174891714};
+constexpr double kWg[4] = {0.129484966168869693270611432679082, 0.279705391489276667901467771423780,
+                           0.381830050505118944950369775488975, 0.417959183673469387755102040816327};
+
+// Value of an integrand at a point and the error already made computing it
+// (an inner integral's error estimate; zero for a plain function).
+struct PointValue {
+  Array3d value = Array3d::Zero();
+  Array3d error = Array3d::Zero();
+};
+
+struct Segment {
+  double a = 0, b = 0;
+  Array3d value = Array3d::Zero();
+  Array3d error = Array3d::Zero();  // |K15 - G7| plus the carried errors of its nodes
+  double key = 0;                   // largest channel error, for the priority queue
+  bool operator<(const Segment& o) const { return key < o.key; }
+};
+
+template <typename F>
+Segment Kronrod(F& f, double a, double b) {
+  const double c = 0.5 * (a + b), h = 0.5 * (b - a);
+  Segment s;
+  s.a = a;
+  s.b = b;
+  Array3d k = Array3d::Zero(), g = Array3d::Zero(), carried = Array3d::Zero(), abs_sum = Array3d::Zero();
+  Array3d fv[15];
+  int idx = 0;
+  for (int j = 0; j < 8; ++j) {
+    const int npts = j == 7 ? 1 : 2;
+    for (int side = 0; side < npts; ++side) {
+      const double x = side == 0 ? c - h * kXgk[j] : c + h * kXgk[j];
+      const PointValue v = f(x);
+      fv[idx++] = v.value;
+      k += kWgk[j] * v.value;
+      abs_sum += kWgk[j] * v.value.abs();
+      carried += kWgk[j] * v.error;
+      if (j % 2 == 1) g += kWg[j / 2] * v.value;
+    }
+  }
+  // QUADPACK qk15 error estimate: |K15 - G7| scaled by the integrand's
+  // variation over the segment, (200 |K - G| / resasc)^1.5 resasc, with a
+  // floor of 50 machine epsilons of the absolute integral for rounding.
+  const Array3d mean = k * 0.5;
+  Array3d resasc = Array3d::Zero();
+  idx = 0;
+  for (int j = 0; j < 8; ++j)
+    for (int side = 0; side < (j == 7 ? 1 : 2); ++side) resasc += kWgk[j] * (fv[idx++] - mean).abs();
+  const double ah = std::abs(h);
+  Array3d err = ((k - g) * ah).abs();
+  for (int ch = 0; ch < 3; ++ch) {
+    const double ra = resasc[ch] * ah;
+    if (ra > 0 && err[ch] > 0) err[ch] = ra * std::min(1.0, std::pow(200.0 * err[ch] / ra, 1.5));
+    err[ch] = std::max(err[ch], 50.0 * std::numeric_limits<double>::epsilon() * abs_sum[ch] * ah);
+  }
+  s.value = k * h;
+  s.error = err + carried * ah;
+  s.key = s.error.maxCoeff();
+  return s;
 }
-AdaptiveResult AdaptiveDirections(const std::function<Array3d(const Vector3d&)>&, const Vector3d&, double,
-                                  const IntegrateOptions&) {
-  throw std::logic_error("adaptive integration is not available in this build");
+
+struct Counter {
+  std::int64_t evals = 0;
+  std::int64_t budget = 0;
+  bool Spent() const { return evals >= budget; }
+};
+
+// Globally adaptive quadrature over [-1, 1] split at `breaks`: bisects the
+// segment with the largest error until the total error meets the tolerance
+// or the evaluation budget is spent.
+template <typename F>
+PointValue Adapt(F& f, std::vector<double> breaks, double abs_tol, double rel_tol, const Counter& counter,
+                 int max_segments = 400) {
+  breaks.push_back(-1.0);
+  breaks.push_back(1.0);
+  std::sort(breaks.begin(), breaks.end());
+  std::vector<Segment> heap;
+  for (std::size_t i = 0; i + 1 < breaks.size(); ++i) {
+    const double a = std::max(-1.0, breaks[i]), b = std::min(1.0, breaks[i + 1]);
+    if (b - a > 1e-12) heap.push_back(Kronrod(f, a, b));
+  }
+  std::make_heap(heap.begin(), heap.end());
+  auto totals = [&heap](Array3d& value, Array3d& error) {
+    value = error = Array3d::Zero();
+    for (const Segment& s : heap) {
+      value += s.value;
+      error += s.error;
+    }
+  };
+  Array3d value, error;
+  totals(value, error);
+  while (!heap.empty() && !counter.Spent() && int(heap.size()) < max_segments) {
+    const Array3d target = (rel_tol * value.abs()).max(abs_tol);
+    if ((error <= target).all()) break;
+    std::pop_heap(heap.begin(), heap.end());
+    const Segment worst = heap.back();
+    const double mid = 0.5 * (worst.a + worst.b);
+    // Segments this short cannot be split further in double precision.
+    if (!(mid > worst.a && mid < worst.b) || worst.b - worst.a < 1e-14) {
+      heap.back().key = -1;  // keep it, but never pick it again
+      std::push_heap(heap.begin(), heap.end());
+      if (heap.front().key < 0) break;
+      continue;
+    }
+    heap.pop_back();
+    heap.push_back(Kronrod(f, worst.a, mid));
+    std::push_heap(heap.begin(), heap.end());
+    heap.push_back(Kronrod(f, mid, worst.b));
+    std::push_heap(heap.begin(), heap.end());
+    totals(value, error);
+  }
+  return PointValue{value, error};
+}
+
+// Maps sigma in [-1, 1] onto [lo, hi] by a cubic whose derivative vanishes at
+// both ends: an integrand with a square-root type end point (the horizon, or
+// a chord of the valid region shrinking to zero) becomes smooth in sigma.
+struct EndMap {
+  double mid = 0, half = 0;
+  EndMap(double lo, double hi) : mid(0.5 * (lo + hi)), half(0.5 * (hi - lo)) {}
+  double operator()(double s) const { return mid + half * 0.5 * s * (3.0 - s * s); }
+  double Derivative(double s) const { return half * 1.5 * (1.0 - s * s); }
+  // sigma for a point u of [lo, hi] (trigonometric root of the cubic).
+  double Inverse(double u) const {
+    const double z = std::clamp((u - mid) / half, -1.0, 1.0);
+    return 2.0 * std::sin(std::asin(z) / 3.0);
+  }
+};
+
+// Roots of a2 x^2 + a1 x + a0 with a2 > 0 (numerically stable form); false
+// when there are no real roots.
+bool QuadraticRoots(double a2, double a1, double a0, double disc, double& lo, double& hi) {
+  if (!(disc > 0) || !(a2 > 0)) return false;
+  const double sq = std::sqrt(disc);
+  const double q = -0.5 * (a1 + std::copysign(sq, a1));
+  if (q == 0) return false;
+  const double r1 = q / a2, r2 = a0 / q;
+  lo = std::min(r1, r2);
+  hi = std::max(r1, r2);
+  return hi > lo;
+}
+
+// Chart of the upper hemisphere by slopes: direction (p, 1) / |(p, 1)| with
+// p = pc + X a + Y b; dw = |a x b| dX dY / (1 + |p|^2)^(3/2).
+struct SlopeChart {
+  Eigen::Vector2d pc = Eigen::Vector2d::Zero(), a = Eigen::Vector2d(1, 0), b = Eigen::Vector2d(0, 1);
+  double Jacobian() const { return std::abs(a.x() * b.y() - a.y() * b.x()); }
+  // Direction and solid-angle density per unit dX dY.
+  Vector3d Direction(double x, double y, double& dw) const {
+    const Eigen::Vector2d p = pc + x * a + y * b;
+    const double r2 = 1.0 + p.squaredNorm();
+    const double r = std::sqrt(r2);
+    dw = Jacobian() / (r2 * r);
+    return Vector3d(p.x() / r, p.y() / r, 1.0 / r);
+  }
+};
+
+// Coordinate along one axis of the slope chart. kTan: x = s tan(t), which
+// turns a GGX lobe of unit width into a trigonometric polynomial (its slope
+// density (s^2 + x^2)^-2 dx becomes cos^2(t) dt / s^3) and reaches infinity
+// at t = +-pi/2; used for a single lobe. kAsinh: x = sinh(t), unit
+// resolution at the lobe and logarithmic reach, so a second, wider component
+// (a diffuse lobe in half-vector space) at slopes ~ 1/alpha is still seen.
+// Both are composed with EndMap on short ranges to smooth end points.
+enum class Warp { kTan, kAsinh };
+
+struct AxisMap {
+  Warp warp;
+  double s;
+  EndMap end;
+  bool smooth;
+  AxisMap(Warp w, double scale, double lo, double hi)
+      : warp(w), s(scale), end(To(w, scale, lo), To(w, scale, hi)), smooth(true) {
+    smooth = warp == Warp::kTan || end.half < 2.0;
+  }
+  static double To(Warp w, double s, double x) { return w == Warp::kTan ? std::atan(x / s) : std::asinh(x / s); }
+  // x and dx/dsigma at sigma.
+  double Map(double sigma, double& jac) const {
+    const double t = smooth ? end(sigma) : end.mid + end.half * sigma;
+    const double dt = smooth ? end.Derivative(sigma) : end.half;
+    if (warp == Warp::kTan) {
+      const double c = std::cos(t);
+      jac = s * dt / (c * c);
+      return s * std::tan(t);
+    }
+    jac = s * std::cosh(t) * dt;
+    return s * std::sinh(t);
+  }
+  // Break point at the lobe centre x = 0 when it is well inside the range.
+  std::vector<double> Breaks() const {
+    const double lo = end.mid - end.half, hi = end.mid + end.half;
+    const double margin = 0.05 * (hi - lo);
+    if (!(lo + margin < 0.0 && 0.0 < hi - margin)) return {};
+    return {smooth ? end.Inverse(0.0) : -end.mid / end.half};
+  }
+};
+
+// One rectangle [y0, y1] x [x0, x1] of the (sigma_y, sigma_x) square with
+// its 15 x 15 Gauss-Kronrod product estimate and per-axis error indicators.
+struct Rect {
+  double y0 = -1, y1 = 1, x0 = -1, x1 = 1;
+  Array3d value = Array3d::Zero();
+  Array3d err_x = Array3d::Zero(), err_y = Array3d::Zero();
+  double key = 0;
+  bool operator<(const Rect& o) const { return key < o.key; }
+  Array3d Error() const { return err_x + err_y; }
+};
+
+// QUADPACK's scaling of a raw |K - G| difference (qk15): resasc
+// min(1, (200 |K - G| / resasc)^1.5), floored at 50 machine epsilons of the
+// absolute integral for rounding.
+Array3d QuadpackError(const Array3d& raw, const Array3d& resasc, const Array3d& resabs) {
+  Array3d e = raw;
+  for (int c = 0; c < 3; ++c) {
+    if (resasc[c] > 0 && e[c] > 0) e[c] = resasc[c] * std::min(1.0, std::pow(200.0 * e[c] / resasc[c], 1.5));
+    e[c] = std::max(e[c], 50.0 * std::numeric_limits<double>::epsilon() * resabs[c]);
+  }
+  return e;
+}
+
+// Globally adaptive cubature over a slope chart (Genz & Malik 1980 strategy,
+// with a product Gauss-Kronrod 15 x 15 rule): the rectangle with the largest
+// error is halved along the axis whose embedded Gauss rule disagrees most.
+// The outer coordinate Y runs over [y_lo, y_hi]; for each Y the inner X runs
+// over range_x(Y) (false: empty), mapped onto sigma_x in [-1, 1], so the
+// valid region is always the full square and the integrand is smooth in it.
+template <typename RangeX, typename G>
+AdaptiveResult AdaptiveSlope(const SlopeChart& chart, Warp warp, double y_lo, double y_hi, RangeX&& range_x, G&& g,
+                             const IntegrateOptions& o) {
+  AdaptiveResult out;
+  if (!(y_hi > y_lo)) return out;
+  const AxisMap my(warp, 1.0, y_lo, y_hi);
+  std::int64_t evals = 0;
+  double nodes[15], wk[15], wg[15];
+  for (int j = 0, i = 0; j < 8; ++j) {
+    for (int side = 0; side < (j == 7 ? 1 : 2); ++side, ++i) {
+      nodes[i] = side == 0 ? -kXgk[j] : kXgk[j];
+      wk[i] = kWgk[j];
+      wg[i] = j % 2 == 1 ? kWg[j / 2] : 0.0;
+    }
+  }
+  auto evaluate = [&](Rect r) {
+    const double cy = 0.5 * (r.y0 + r.y1), hy = 0.5 * (r.y1 - r.y0);
+    const double cx = 0.5 * (r.x0 + r.x1), hx = 0.5 * (r.x1 - r.x0);
+    Array3d f[15][15];
+    for (int i = 0; i < 15; ++i) {
+      double jy;
+      const double y = my.Map(cy + hy * nodes[i], jy);
+      double x_lo, x_hi;
+      const bool row = jy > 0 && std::isfinite(y) && range_x(y, x_lo, x_hi);
+      const AxisMap mx(warp, warp == Warp::kTan ? std::sqrt(1.0 + y * y) : 1.0, row ? x_lo : 0.0,
+                       row ? x_hi : 1.0);
+      for (int j = 0; j < 15; ++j) {
+        f[i][j] = Array3d::Zero();
+        ++evals;
+        if (!row) continue;
+        double jx;
+        const double x = mx.Map(cx + hx * nodes[j], jx);
+        if (!(jx > 0) || !std::isfinite(x)) continue;
+        double dw;
+        const Vector3d d = chart.Direction(x, y, dw);
+        f[i][j] = g(d) * (dw * jx * jy);
+      }
+    }
+    Array3d k = Array3d::Zero(), gy = Array3d::Zero(), gx = Array3d::Zero(), abs_k = Array3d::Zero();
+    for (int i = 0; i < 15; ++i)
+      for (int j = 0; j < 15; ++j) {
+        k += wk[i] * wk[j] * f[i][j];
+        gy += wg[i] * wk[j] * f[i][j];
+        gx += wk[i] * wg[j] * f[i][j];
+        abs_k += wk[i] * wk[j] * f[i][j].abs();
+      }
+    const double area = hx * hy;
+    const Array3d mean = k / 4.0;
+    Array3d resasc = Array3d::Zero();
+    for (int i = 0; i < 15; ++i)
+      for (int j = 0; j < 15; ++j) resasc += wk[i] * wk[j] * (f[i][j] - mean).abs();
+    r.value = k * area;
+    r.err_y = QuadpackError(((k - gy) * area).abs(), resasc * area, abs_k * area);
+    r.err_x = QuadpackError(((k - gx) * area).abs(), resasc * area, abs_k * area);
+    r.key = r.Error().maxCoeff();
+    return r;
+  };
+  std::vector<Rect> heap;
+  {
+    std::vector<double> ys = {-1.0, 1.0};
+    for (double b : my.Breaks()) ys.push_back(b);
+    std::sort(ys.begin(), ys.end());
+    for (std::size_t i = 0; i + 1 < ys.size(); ++i) {
+      Rect r;
+      r.y0 = ys[i];
+      r.y1 = ys[i + 1];
+      heap.push_back(evaluate(r));
+    }
+  }
+  std::make_heap(heap.begin(), heap.end());
+  Array3d value, error;
+  auto totals = [&] {
+    value = error = Array3d::Zero();
+    for (const Rect& r : heap) {
+      value += r.value;
+      error += r.Error();
+    }
+  };
+  totals();
+  const std::int64_t per_rect = 225;
+  while (evals + 2 * per_rect <= o.budget) {
+    const Array3d target = (o.rel_tolerance * value.abs()).max(o.abs_tolerance);
+    if ((error <= target).all()) break;
+    std::pop_heap(heap.begin(), heap.end());
+    const Rect worst = heap.back();
+    if (worst.key < 0) break;  // nothing left that can be split
+    Rect a = worst, b = worst;
+    const bool split_y = worst.err_y.maxCoeff() >= worst.err_x.maxCoeff();
+    if (split_y) {
+      a.y1 = b.y0 = 0.5 * (worst.y0 + worst.y1);
+    } else {
+      a.x1 = b.x0 = 0.5 * (worst.x0 + worst.x1);
+    }
+    // Rectangles this thin cannot be split further in double precision.
+    if ((split_y ? worst.y1 - worst.y0 : worst.x1 - worst.x0) < 1e-13) {
+      heap.back().key = -1;
+      std::push_heap(heap.begin(), heap.end());
+      continue;
+    }
+    heap.pop_back();
+    heap.push_back(evaluate(a));
+    std::push_heap(heap.begin(), heap.end());
+    heap.push_back(evaluate(b));
+    std::push_heap(heap.begin(), heap.end());
+    totals();
+  }
+  out.value = value;
+  out.error = error;
+  out.evals = evals;
+  return out;
+}
+
+// Directional albedo in half-vector space (Walter 2007 eq. 14: dwi = 4 |wo.h| dwh):
+// the slopes of h are stretched by the roughness (ax, ay), so a lobe of any
+// width covers a unit region, and wi stays above the horizon exactly inside
+// an ellipse of the slope plane,
+//   mu |p|^2 - 2 wo_xy . p - mu < 0   (from wi.z = 2 (wo.h) h.z - mu > 0),
+// whose chords give the inner ranges.
+AdaptiveResult AdaptiveHalfVector(const Bxdf<double>& bxdf, const double* params, const Vector3d& wo, double ax,
+                                  double ay, const IntegrateOptions& o) {
+  const double mu = wo.z();
+  const Eigen::Vector2d wxy(wo.x(), wo.y());
+  // Inner axis along the ellipse's normal at the point nearest the lobe, so
+  // the boundary crosses inner lines at a steep angle even at grazing wo.
+  Eigen::Vector2d n(ax * wo.x(), ay * wo.y());
+  n = n.norm() > 1e-300 ? Eigen::Vector2d(n / n.norm()) : Eigen::Vector2d(1, 0);
+  const Eigen::Vector2d m(-n.y(), n.x());
+  SlopeChart chart;
+  chart.a = Eigen::Vector2d(ax * n.x(), ay * n.y());
+  chart.b = Eigen::Vector2d(ax * m.x(), ay * m.y());
+  const Eigen::Vector2d& a = chart.a;
+  const Eigen::Vector2d& b = chart.b;
+  // For fixed Y: a2 X^2 + a1 X + a0 < 0 with the coefficients below.
+  const double a2 = mu * a.squaredNorm();
+  const double beta0 = -wxy.dot(a), beta1 = mu * a.dot(b);
+  const double gamma2 = mu * b.squaredNorm(), gamma1 = -2.0 * wxy.dot(b), gamma0 = -mu;
+  // Discriminant / 4 = q2 Y^2 + q1 Y + q0, q2 = -mu^2 (a x b)^2 < 0.
+  const double cross = chart.Jacobian();
+  const double q2 = -mu * mu * cross * cross;
+  const double q1 = 2.0 * beta0 * beta1 - a2 * gamma1;
+  const double q0 = beta0 * beta0 - a2 * gamma0;
+  double y_lo, y_hi;
+  if (!QuadraticRoots(-q2, -q1, -q0, q1 * q1 - 4.0 * q2 * q0, y_lo, y_hi)) return {};
+  auto range_x = [=](double y, double& lo, double& hi) {
+    const double a1 = 2.0 * (beta0 + beta1 * y);
+    const double a0 = gamma2 * y * y + gamma1 * y + gamma0;
+    const double disc4 = q2 * y * y + q1 * y + q0;
+    return QuadraticRoots(a2, a1, a0, 4.0 * disc4, lo, hi);
+  };
+  auto g = [&](const Vector3d& h) -> Array3d {
+    const double wo_h = wo.dot(h);
+    const Vector3d wi = 2.0 * wo_h * h - wo;
+    if (!(wi.z() > 0) || !(wo_h > 0)) return Array3d::Zero();  // rounding at the ellipse's edge
+    return bxdf.Eval(params, wi, wo) * (wi.z() * 4.0 * wo_h);
+  };
+  // A single microfacet lobe has the GGX-like slope density the tan warp
+  // flattens; sums and other lobes need the asinh warp's reach.
+  const Warp warp = bxdf.Microfacet() ? Warp::kTan : Warp::kAsinh;
+  return AdaptiveSlope(chart, warp, y_lo, y_hi, range_x, g, o);
+}
+
+// Generic integrand near a peak: the slope chart centred on the peak's slope,
+// stretched by the peak's width (radially by 1/cos^2, tangentially by 1/cos,
+// the growth of slopes with the polar angle); the whole plane is the open
+// hemisphere, reached through the tan warp.
+AdaptiveResult AdaptivePeak(const std::function<Array3d(const Vector3d&)>& g, const Vector3d& peak, double width,
+                            const IntegrateOptions& o) {
+  const double cz = std::max(peak.z(), 1e-6);  // a peak on the horizon: chart it just above
+  SlopeChart chart;
+  chart.pc = Eigen::Vector2d(peak.x(), peak.y()) / cz;
+  Eigen::Vector2d n = chart.pc.norm() > 0 ? Eigen::Vector2d(chart.pc.normalized()) : Eigen::Vector2d(1, 0);
+  chart.a = n * (width / (cz * cz));
+  chart.b = Eigen::Vector2d(-n.y(), n.x()) * (width / cz);
+  const double inf = std::numeric_limits<double>::infinity();
+  auto range_x = [inf](double, double& lo, double& hi) {
+    lo = -inf;
+    hi = inf;
+    return true;
+  };
+  return AdaptiveSlope(chart, Warp::kTan, -inf, inf, range_x, g, o);
+}
+
+// No lobe: directions by (phi, cos theta), phi measured from `phi0`, with
+// break points at phi0 + {-pi/2, 0, pi/2} and cos theta = `mu_break` (where
+// diffuse models such as Oren-Nayar have kinks).
+AdaptiveResult AdaptiveSpherical(const std::function<Array3d(const Vector3d&)>& g, double phi0, double mu_break,
+                                 const IntegrateOptions& o) {
+  Counter counter{0, o.budget};
+  const EndMap mu_map(0.0, 1.0);
+  std::vector<double> mu_breaks;
+  if (mu_break > 0.01 && mu_break < 0.99) mu_breaks.push_back(mu_map.Inverse(mu_break));
+  const double inner_rel = 0.1 * o.rel_tolerance, inner_abs = 0.05 * o.abs_tolerance;
+  auto outer = [&](double sp) -> PointValue {
+    const double phi = phi0 + kPi * sp;
+    const double c = std::cos(phi), s = std::sin(phi);
+    auto inner = [&](double su) -> PointValue {
+      const double u = mu_map(su);
+      const double ju = mu_map.Derivative(su);
+      ++counter.evals;
+      PointValue pv;
+      if (!(u > 0) || !(ju > 0)) return pv;
+      const double r = std::sqrt(std::max(0.0, 1.0 - u * u));
+      pv.value = g(Vector3d(r * c, r * s, u)) * (ju * kPi);
+      return pv;
+    };
+    return Adapt(inner, mu_breaks, inner_abs, inner_rel, counter);
+  };
+  const PointValue r = Adapt(outer, {-0.5, 0.0, 0.5}, o.abs_tolerance, o.rel_tolerance, counter);
+  return AdaptiveResult{r.value, r.error, counter.evals};
 }
 
 Estimate Run(const Problem& pb, Method method, const IntegrateOptions& o) {
@@ -326,10 +769,14 @@ Estimate Run(const Problem& pb, Method method, const IntegrateOptions& o) {
     case Method::kAdaptive: {
       const auto t0 = std::chrono::steady_clock::now();
       AdaptiveResult r;
-      if (pb.bxdf) {
+      if (pb.bxdf && pb.alpha_x > 0) {
         r = AdaptiveHalfVector(*pb.bxdf, pb.params, pb.wo, pb.alpha_x, pb.alpha_y, o);
+      } else if (pb.bxdf) {
+        r = AdaptiveSpherical(pb.g, std::atan2(pb.wo.y(), pb.wo.x()), pb.wo.z(), o);
+      } else if (!pb.peak.isZero() && pb.width > 0) {
+        r = AdaptivePeak(pb.g, pb.peak, pb.width, o);
       } else {
-        r = AdaptiveDirections(pb.g, pb.peak, pb.width, o);
+        r = AdaptiveSpherical(pb.g, 0.0, 0.0, o);
       }
       Estimate e;
       e.value = r.value;

@@ -11,14 +11,19 @@
 //                    sampling; the error comes from independent replicates;
 //  - gauss_legendre: deterministic product rule in (cos theta, phi);
 //  - adaptive:       deterministic, globally adaptive Gauss-Kronrod (7, 15)
-//                    cubature on rectangles of half-vector space with the
-//                    polar angle stretched by the lobe width, accurate for
-//                    mirror-like lobes (alpha down to 1e-4) and grazing wo.
+//                    product cubature on rectangles of the half-vector slope
+//                    plane, slopes stretched by the roughness and the
+//                    horizon mapped to the edges of the rectangles, accurate
+//                    for mirror-like lobes (alpha down to 1e-4) and grazing wo;
+//                    models without a roughness parameter are integrated in
+//                    (phi, cos theta) with nested adaptive Gauss-Kronrod.
 //
 // Every estimate carries an honest absolute error: the standard error (times
 // a safety factor) for Monte Carlo, the spread of replicates for QMC, the
 // difference to a coarser rule for Gauss-Legendre, and the sum of embedded
-// Kronrod-Gauss differences for the adaptive rule.
+// Kronrod-Gauss differences (QUADPACK scaling) for the adaptive rule. Monte
+// Carlo estimates given a peak they rarely sample add the error such a peak
+// can hide (see PeakFloor in integrators.cpp).
 #pragma once
 
 #include <Eigen/Core>
