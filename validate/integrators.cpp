@@ -32,6 +32,8 @@ struct Problem {
   std::function<DirSample(double, double)> sample;  // empty: cosine or lobe mixture
   Vector3d peak = Vector3d::Zero();                  // zero: no peak known
   double width = 0;                                  // angular width of the peak (radians)
+  double width_y = 0;                                // along y, for a peak at the normal
+  Vector3d cut = Vector3d::Zero();                   // g = 0 where cut.w <= 0 (zero: none)
   double lobe_solid_angle = 0;                       // solid angle holding most of the peak's mass
   // Adaptive rule: the BRDF case works in half-vector space.
   const Bxdf<double>* bxdf = nullptr;
@@ -710,16 +712,29 @@ AdaptiveResult AdaptiveHalfVector(const Bxdf<double>& bxdf, const double* params
 // the growth of slopes with the polar angle); the whole plane is the open
 // hemisphere, reached through the tan warp.
 AdaptiveResult AdaptivePeak(const std::function<Array3d(const Vector3d&)>& g, const Vector3d& peak, double width,
-                            const IntegrateOptions& o) {
+                            double width_y, const Vector3d& cut, const IntegrateOptions& o) {
   const double cz = std::max(peak.z(), 1e-6);  // a peak on the horizon: chart it just above
   SlopeChart chart;
   chart.pc = Eigen::Vector2d(peak.x(), peak.y()) / cz;
-  Eigen::Vector2d n = chart.pc.norm() > 0 ? Eigen::Vector2d(chart.pc.normalized()) : Eigen::Vector2d(1, 0);
-  chart.a = n * (width / (cz * cz));
-  chart.b = Eigen::Vector2d(-n.y(), n.x()) * (width / cz);
   const double inf = std::numeric_limits<double>::infinity();
-  auto range_x = [inf](double, double& lo, double& hi) {
-    lo = -inf;
+  double x_min = -inf;
+  if (chart.pc.norm() > 0) {
+    const Eigen::Vector2d n = chart.pc.normalized();
+    chart.a = n * (width / (cz * cz));
+    chart.b = Eigen::Vector2d(-n.y(), n.x()) * (width / cz);
+  } else {
+    // Peak at the normal: inner axis along the cut's normal in the stretched
+    // plane, so cut.(p, 1) > 0 reads X > x_min for every Y.
+    Eigen::Vector2d n(width * cut.x(), width_y * cut.y());
+    const bool has_cut = n.norm() > 0;
+    n = has_cut ? Eigen::Vector2d(n.normalized()) : Eigen::Vector2d(1, 0);
+    const Eigen::Vector2d m(-n.y(), n.x());
+    chart.a = Eigen::Vector2d(width * n.x(), width_y * n.y());
+    chart.b = Eigen::Vector2d(width * m.x(), width_y * m.y());
+    if (has_cut) x_min = -cut.z() / (cut.x() * chart.a.x() + cut.y() * chart.a.y());
+  }
+  auto range_x = [x_min, inf](double, double& lo, double& hi) {
+    lo = x_min;
     hi = inf;
     return true;
   };
@@ -774,7 +789,7 @@ Estimate Run(const Problem& pb, Method method, const IntegrateOptions& o) {
       } else if (pb.bxdf) {
         r = AdaptiveSpherical(pb.g, std::atan2(pb.wo.y(), pb.wo.x()), pb.wo.z(), o);
       } else if (!pb.peak.isZero() && pb.width > 0) {
-        r = AdaptivePeak(pb.g, pb.peak, pb.width, o);
+        r = AdaptivePeak(pb.g, pb.peak, pb.width, pb.width_y, pb.cut, o);
       } else {
         r = AdaptiveSpherical(pb.g, 0.0, 0.0, o);
       }
@@ -894,16 +909,19 @@ Estimate DirectionalAlbedo(const Bxdf<double>& bxdf, const double* params, const
 }
 
 Estimate IntegrateHemisphere(const std::function<Array3d(const Vector3d&)>& g, Method method,
-                             const IntegrateOptions& options, const Vector3d& peak, double width) {
+                             const IntegrateOptions& options, const Vector3d& peak, double width, double width_y,
+                             const Vector3d& cut) {
   Problem pb;
-  pb.g = [&g](const Vector3d& w) -> Array3d {
-    if (!(w.z() > 0)) return Array3d::Zero();
+  pb.g = [&g, cut](const Vector3d& w) -> Array3d {
+    if (!(w.z() > 0) || !(cut.isZero() || cut.dot(w) > 0)) return Array3d::Zero();
     return g(w);
   };
+  pb.cut = cut.allFinite() ? cut : Vector3d::Zero();
   if (!peak.isZero() && peak.allFinite() && width > 0 && std::isfinite(width)) {
     pb.peak = peak.normalized();
     pb.width = width;
-    pb.lobe_solid_angle = std::min(2.0 * kPi, kPi * width * width);
+    pb.width_y = width_y > 0 && std::isfinite(width_y) ? width_y : width;
+    pb.lobe_solid_angle = std::min(2.0 * kPi, kPi * width * pb.width_y);
   }
   return Run(pb, method, options);
 }

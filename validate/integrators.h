@@ -69,9 +69,14 @@ Estimate DirectionalAlbedo(const Bxdf<double>& bxdf, const double* params, const
 // optional hint: a unit direction where g is sharply peaked (zero vector if
 // none) and `width` its angular width in radians (0 if unknown); importance
 // methods fall back to cosine sampling for a generic integrand.
+// width_y > 0 (with the peak at the normal) makes the peak anisotropic:
+// `width` along x and `width_y` along y. A non-zero `cut` declares that g
+// vanishes where cut.w <= 0 (as max(0, wo.m) in the weak white furnace); with
+// the peak at the normal the adaptive rule then puts that kink on the edges
+// of its rectangles instead of refining around it.
 Estimate IntegrateHemisphere(const std::function<Eigen::Array3d(const Eigen::Vector3d&)>& g, Method method,
                              const IntegrateOptions& options, const Eigen::Vector3d& peak = Eigen::Vector3d::Zero(),
-                             double width = 0);
+                             double width = 0, double width_y = 0, const Eigen::Vector3d& cut = Eigen::Vector3d::Zero());
 
 // Angular width (radians, about the lobe's roughness alpha) of a model's
 // narrowest lobe at these parameters, read from parameters named alpha,
