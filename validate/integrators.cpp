@@ -164,6 +164,11 @@ Array3d PeakFloor(const Problem& pb, double pdf_at_peak, std::int64_t n) {
   return mass * std::sqrt((1.0 - p) / (double(n) * p));
 }
 
+// Worst-case rounding of a sum of n terms: n machine epsilons of the value.
+Array3d RoundingFloor(const Array3d& value, std::int64_t n) {
+  return value.abs() * (double(std::max<std::int64_t>(n, 1)) * std::numeric_limits<double>::epsilon());
+}
+
 constexpr std::int64_t kBlock = 1024;
 
 Estimate MonteCarlo(const Problem& pb, Method method, const IntegrateOptions& o) {
@@ -213,6 +218,9 @@ Estimate MonteCarlo(const Problem& pb, Method method, const IntegrateOptions& o)
   // floor for a peak the sampler may have missed.
   e.error = (3.0 * total.StdError()).max(method == Method::kImportance ? Array3d::Zero()
                                                                        : PeakFloor(pb, pdf_at_peak, n));
+  // Rounding of the running sums bounds what a zero-variance estimator
+  // (exact importance sampling) can claim.
+  e.error = e.error.max(RoundingFloor(e.value, n));
   e.seconds = Seconds(t0);
   return e;
 }
@@ -245,7 +253,7 @@ Estimate Sobol(const Problem& pb, const IntegrateOptions& o) {
   Stats st;
   for (const Array3d& m : means) st.Add(m);
   e.value = st.mean;
-  e.error = StudentT99(replicates - 1) * st.StdError();
+  e.error = (StudentT99(replicates - 1) * st.StdError()).max(RoundingFloor(st.mean, per));
   e.evals = per * replicates;
   e.seconds = Seconds(t0);
   return e;
@@ -292,7 +300,7 @@ Estimate GaussLegendreRule(const Problem& pb, const IntegrateOptions& o) {
     const double sin0 = std::sqrt(std::max(0.0, 1.0 - u0 * u0));
     const double dtheta = du / std::max(sin0, std::sqrt(du));
     const double spacing = std::max(dtheta, sin0 * kPi / n);
-    if (spacing > pb.width && pb.lobe_solid_angle > 0)
+    if (spacing > std::min(pb.width, pb.width_y > 0 ? pb.width_y : pb.width) && pb.lobe_solid_angle > 0)
       e.error = e.error.max(pb.g(pb.peak).abs() * pb.lobe_solid_angle);
   }
   e.seconds = Seconds(t0);
