@@ -1,0 +1,226 @@
+#include "validate/plot.h"
+
+#include <plplot.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <mutex>
+#include <random>
+#include <stdexcept>
+
+namespace brdfkit::validate {
+
+namespace {
+
+std::mutex& PlplotMutex() {
+  static std::mutex m;
+  return m;
+}
+
+// Series colours (cmap0 slots 1..8), readable on white.
+constexpr int kPalette[8][3] = {{31, 119, 180}, {214, 39, 40},  {44, 160, 44},  {148, 103, 189},
+                                {255, 127, 14}, {140, 86, 75},  {227, 119, 194}, {23, 190, 207}};
+
+// Owns the temporary output file and one PLplot stream; PLplot aborts the
+// process when it cannot open its output, so the file is created (and the
+// directory checked) here first.
+class SvgStream {
+ public:
+  explicit SvgStream(const std::string& target) : target_(target) {
+    namespace fs = std::filesystem;
+    if (fs::is_directory(target_)) throw std::runtime_error("cannot write '" + target + "': it is a directory");
+    std::random_device rd;
+    tmp_ = target_;
+    tmp_ += ".tmp-" + std::to_string(rd() % 1000000) + ".svg";
+    {
+      std::ofstream probe(tmp_);
+      if (!probe) throw std::runtime_error("cannot write '" + target + "' (cannot create a file there)");
+    }
+    plsdev("svg");
+    plsfnam(tmp_.c_str());
+    plspage(0, 0, 900, 640, 0, 0);
+    plscol0(0, 255, 255, 255);  // background
+    plscol0(15, 0, 0, 0);       // axes and text
+    for (int i = 0; i < 8; ++i) plscol0(i + 1, kPalette[i][0], kPalette[i][1], kPalette[i][2]);
+    plinit();
+    open_ = true;
+  }
+  SvgStream(const SvgStream&) = delete;
+  SvgStream& operator=(const SvgStream&) = delete;
+  ~SvgStream() {
+    if (open_) plend();
+    if (!committed_) {
+      std::error_code ec;
+      std::filesystem::remove(tmp_, ec);
+    }
+  }
+  void Commit() {
+    plend();
+    open_ = false;
+    std::error_code ec;
+    if (std::filesystem::file_size(tmp_, ec) == 0 || ec)
+      throw std::runtime_error("writing '" + target_.string() + "' failed (empty plot output)");
+    std::filesystem::rename(tmp_, target_, ec);
+    if (ec) throw std::runtime_error("cannot write '" + target_.string() + "': " + ec.message());
+    committed_ = true;
+  }
+
+ private:
+  std::filesystem::path target_, tmp_;
+  bool open_ = false, committed_ = false;
+};
+
+// Range of finite values with a margin; log10 already applied.
+void Range(const std::vector<double>& v, double& lo, double& hi) {
+  lo = std::numeric_limits<double>::infinity();
+  hi = -lo;
+  for (double x : v) {
+    lo = std::min(lo, x);
+    hi = std::max(hi, x);
+  }
+  if (!(hi > lo)) {
+    lo -= 0.5;
+    hi += 0.5;
+  }
+  const double pad = 0.04 * (hi - lo);
+  lo -= pad;
+  hi += pad;
+}
+
+}  // namespace
+
+void LinePlot(const std::string& svg_path, const std::string& title, const std::string& xlabel,
+              const std::string& ylabel, const std::vector<Series>& series, bool log_x, bool log_y) {
+  // Points as drawn (log10 on log axes), dropping those a log axis cannot show.
+  std::vector<std::vector<double>> xs(series.size()), ys(series.size());
+  std::vector<double> all_x, all_y;
+  for (std::size_t s = 0; s < series.size(); ++s) {
+    if (series[s].x.size() != series[s].y.size())
+      throw std::invalid_argument("plot '" + svg_path + "': series '" + series[s].label + "' has " +
+                                  std::to_string(series[s].x.size()) + " x values but " +
+                                  std::to_string(series[s].y.size()) + " y values");
+    for (std::size_t i = 0; i < series[s].x.size(); ++i) {
+      double x = series[s].x[i], y = series[s].y[i];
+      if (!std::isfinite(x) || !std::isfinite(y) || (log_x && !(x > 0)) || (log_y && !(y > 0))) continue;
+      if (log_x) x = std::log10(x);
+      if (log_y) y = std::log10(y);
+      xs[s].push_back(x);
+      ys[s].push_back(y);
+      all_x.push_back(x);
+      all_y.push_back(y);
+    }
+  }
+  if (all_x.empty()) throw std::invalid_argument("plot '" + svg_path + "': no finite points to draw");
+  double x0, x1, y0, y1;
+  Range(all_x, x0, x1);
+  Range(all_y, y0, y1);
+
+  std::lock_guard<std::mutex> lock(PlplotMutex());
+  SvgStream out(svg_path);
+  plcol0(15);
+  plschr(0, 0.8);
+  plenv(x0, x1, y0, y1, 0, (log_x ? 10 : 0) + (log_y ? 20 : 0) + 2);  // 2: grid lines
+  pllab(xlabel.c_str(), ylabel.c_str(), title.c_str());
+  std::vector<PLINT> opts, colours, styles;
+  std::vector<PLFLT> widths;
+  std::vector<const char*> texts;
+  PLINT drawn = 0;
+  for (std::size_t s = 0; s < series.size(); ++s) {
+    const PLINT colour = PLINT(s % 8) + 1;
+    const PLINT style = PLINT((s / 8) % 8) + 1;
+    plcol0(colour);
+    pllsty(style);
+    plwidth(2.0);
+    if (xs[s].size() > 1) plline(PLINT(xs[s].size()), xs[s].data(), ys[s].data());
+    if (!xs[s].empty()) plpoin(PLINT(xs[s].size()), xs[s].data(), ys[s].data(), 17);
+    opts.push_back(PL_LEGEND_LINE);
+    colours.push_back(colour);
+    styles.push_back(style);
+    widths.push_back(2.0);
+    texts.push_back(series[s].label.c_str());
+    ++drawn;
+  }
+  pllsty(1);
+  plwidth(1.0);
+  if (drawn > 0) {
+    std::vector<PLINT> text_colours(std::size_t(drawn), 15);
+    PLFLT lw, lh;
+    plscol0a(0, 255, 255, 255, 0.85);
+    pllegend(&lw, &lh, PL_LEGEND_BACKGROUND | PL_LEGEND_BOUNDING_BOX, PL_POSITION_TOP | PL_POSITION_RIGHT | PL_POSITION_INSIDE,
+             0.02, 0.02, 0.08, 0, 15, 1, 0, 0, drawn, opts.data(), 1.0, 0.8, 2.0, 0.0, text_colours.data(),
+             texts.data(), nullptr, nullptr, nullptr, nullptr, colours.data(), styles.data(), widths.data(),
+             nullptr, nullptr, nullptr, nullptr);
+  }
+  out.Commit();
+}
+
+void HeatMap(const std::string& svg_path, const std::string& title, const std::string& xlabel,
+             const std::string& ylabel, const std::vector<double>& x_nodes, const std::vector<double>& y_nodes,
+             const std::vector<double>& values) {
+  const std::size_t nx = x_nodes.size(), ny = y_nodes.size();
+  if (nx < 2 || ny < 2) throw std::invalid_argument("heat map '" + svg_path + "': needs at least 2 x 2 nodes");
+  if (values.size() != nx * ny)
+    throw std::invalid_argument("heat map '" + svg_path + "': " + std::to_string(values.size()) +
+                                " values for a " + std::to_string(nx) + " x " + std::to_string(ny) + " grid");
+  for (std::size_t i = 0; i + 1 < nx; ++i)
+    if (!(x_nodes[i + 1] > x_nodes[i])) throw std::invalid_argument("heat map '" + svg_path + "': x nodes must increase");
+  for (std::size_t i = 0; i + 1 < ny; ++i)
+    if (!(y_nodes[i + 1] > y_nodes[i])) throw std::invalid_argument("heat map '" + svg_path + "': y nodes must increase");
+  double zmin = std::numeric_limits<double>::infinity(), zmax = -zmin;
+  for (double v : values) {
+    if (!std::isfinite(v)) continue;
+    zmin = std::min(zmin, v);
+    zmax = std::max(zmax, v);
+  }
+  if (!(zmax >= zmin)) throw std::invalid_argument("heat map '" + svg_path + "': no finite values");
+  if (!(zmax > zmin)) {
+    zmin -= 0.5;
+    zmax += 0.5;
+  }
+
+  std::lock_guard<std::mutex> lock(PlplotMutex());
+  SvgStream out(svg_path);
+  plcol0(15);
+  plschr(0, 0.8);
+  plenv(x_nodes.front(), x_nodes.back(), y_nodes.front(), y_nodes.back(), 0, 0);
+  pllab(xlabel.c_str(), ylabel.c_str(), title.c_str());
+  PLFLT** z;
+  plAlloc2dGrid(&z, PLINT(nx), PLINT(ny));
+  for (std::size_t ix = 0; ix < nx; ++ix)
+    for (std::size_t iy = 0; iy < ny; ++iy) {
+      const double v = values[iy * nx + ix];
+      z[ix][iy] = std::isfinite(v) ? v : zmin;  // missing values drawn at the low end
+    }
+  std::vector<PLFLT> xg(x_nodes.begin(), x_nodes.end()), yg(y_nodes.begin(), y_nodes.end());
+  PLcGrid grid;
+  grid.xg = xg.data();
+  grid.yg = yg.data();
+  grid.zg = nullptr;
+  grid.nx = PLINT(nx);
+  grid.ny = PLINT(ny);
+  const int levels = 33;
+  std::vector<PLFLT> clevel(levels);
+  for (int i = 0; i < levels; ++i) clevel[i] = zmin + (zmax - zmin) * i / (levels - 1);
+  plspal1("cmap1_blue_yellow.pal", 1);
+  plshades(const_cast<PLFLT_MATRIX>(z), PLINT(nx), PLINT(ny), nullptr, x_nodes.front(), x_nodes.back(),
+           y_nodes.front(), y_nodes.back(), clevel.data(), levels, 1.0, 0, 0.0, plfill, 1, pltr1, &grid);
+  plFree2dGrid(z, PLINT(nx), PLINT(ny));
+  plcol0(15);
+  plbox("bcnst", 0, 0, "bcnstv", 0, 0);
+  PLFLT cw, ch;
+  const char* axis_opts[] = {"bcvtm"};
+  PLINT label_opts[] = {PL_COLORBAR_LABEL_BOTTOM};
+  const char* labels[] = {""};
+  PLINT n_values[] = {levels};
+  const PLFLT* values_arr[] = {clevel.data()};
+  PLFLT ticks[] = {0.0};
+  PLINT sub_ticks[] = {0};
+  plcolorbar(&cw, &ch, PL_COLORBAR_SHADE | PL_COLORBAR_SHADE_LABEL, PL_POSITION_RIGHT, 0.03, 0.0, 0.04, 0.8, 0, 15, 1,
+             0.0, 0.0, 0, 0.0, 1, label_opts, labels, 1, axis_opts, ticks, sub_ticks, n_values, values_arr);
+  out.Commit();
+}
+
+}  // namespace brdfkit::validate

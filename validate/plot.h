@@ -1,0 +1,30 @@
+// SVG plots through PLplot (svg driver): line plots with optional log axes
+// and heat maps on a (possibly non-uniform) grid. Files are written under a
+// temporary name beside the target and renamed when complete. PLplot keeps
+// global state, so calls are serialised by a mutex; they are safe to make
+// from several threads.
+#pragma once
+
+#include <string>
+#include <vector>
+
+namespace brdfkit::validate {
+
+struct Series {
+  std::string label;
+  std::vector<double> x, y;
+};
+
+// Log axes drop points that are not strictly positive. Throws
+// std::runtime_error naming the file when it cannot be written, and
+// std::invalid_argument for mismatched x/y sizes or no finite points at all.
+void LinePlot(const std::string& svg_path, const std::string& title, const std::string& xlabel,
+              const std::string& ylabel, const std::vector<Series>& series, bool log_x, bool log_y);
+
+// values are row-major: values[iy * x_nodes.size() + ix]; nodes must be
+// strictly increasing. Cells are shaded by value with a colour bar.
+void HeatMap(const std::string& svg_path, const std::string& title, const std::string& xlabel,
+             const std::string& ylabel, const std::vector<double>& x_nodes, const std::vector<double>& y_nodes,
+             const std::vector<double>& values);
+
+}  // namespace brdfkit::validate
