@@ -7,6 +7,7 @@
 #include <tuple>
 
 #include "brdf/lambert.h"
+#include "brdf/merl.h"
 #include "brdf/microfacet.h"
 
 namespace brdfkit {
@@ -19,6 +20,7 @@ using RegisteredModels = std::tuple<
     BeckmannAniso,
     GgxSeparable,
     GgxDielectric,
-    GgxConductor>;
+    GgxConductor,
+    Merl>;
 
 }  // namespace brdfkit
