@@ -49,9 +49,12 @@ template <typename T>
 inline T DBeckmann(const Vec3<T>& wm, const T& ax, const T& ay) {
   using std::exp;
   if (wm.z() <= T(0)) return T(0);  // back-facing microfacets do not exist
+  using std::log;
   const T z2 = wm.z() * wm.z();
   const T tan2_term = (wm.x() * wm.x() / (ax * ax) + wm.y() * wm.y() / (ay * ay)) / z2;
-  return exp(-tan2_term) / (T(kPi) * ax * ay * z2 * z2);
+  // 1 / cos^4 folded into the exponent: near the horizon cos^4 underflows
+  // (in float already at cos = 1e-10) while the exponential vanishes anyway.
+  return exp(-tan2_term - T(2) * log(z2)) / (T(kPi) * ax * ay);
 }
 
 // a^2 tan^2(theta) for projected roughness along w (Heitz 2014 eq. 80 ff.).
@@ -84,7 +87,8 @@ inline T LambdaBeckmann(const Vec3<T>& w, const T& ax, const T& ay) {
 
 template <typename T>
 inline T FresnelSchlick(const T& f0, const T& cos_theta) {
-  const T c = cos_theta > T(0) ? cos_theta : T(0);
+  // Rounding can put a cosine just outside [0, 1]; (1 - c)^5 must not go negative.
+  const T c = cos_theta > T(1) ? T(1) : (cos_theta > T(0) ? cos_theta : T(0));
   const T m = T(1) - c;
   const T m2 = m * m;
   return f0 + (T(1) - f0) * m2 * m2 * m;

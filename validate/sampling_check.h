@@ -15,7 +15,7 @@ namespace brdfkit::validate {
 struct SamplingCheckOptions {
   int theta_bins = 20;        // bins in cos(theta), equal solid angle
   int phi_bins = 40;          // bins in phi
-  int quadrature = 6;         // Gauss-Legendre points per bin side for the expected counts
+  int quadrature = 12;        // Gauss-Legendre points per bin side for the expected counts
   std::int64_t samples = 200000;
   std::uint64_t seed = 1;
   double min_expected = 5.0;  // cells expecting fewer samples are pooled
