@@ -9,11 +9,20 @@
 #include "brdf/lambert.h"
 #include "brdf/merl.h"
 #include "brdf/microfacet.h"
+#include "brdf/oren_nayar.h"
+#include "brdf/phong.h"
+#include "brdf/lafortune.h"
 
 namespace brdfkit {
 
 using RegisteredModels = std::tuple<
     Lambert,
+    OrenNayar,
+    OrenNayarFujii,
+    PhongOriginal,
+    Phong,
+    BlinnPhong,
+    Lafortune,
     Ggx,
     Beckmann,
     GgxAniso,

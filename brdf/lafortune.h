@@ -1,0 +1,112 @@
+// Lafortune, Foo, Torrance & Greenberg 1997, "Non-Linear Approximation of
+// Reflectance Functions", SIGGRAPH '97: one generalized cosine lobe
+//
+//   f_r = rho (n + 2) / (2 pi) max(0, cx wi_x wo_x + cy wi_y wo_y + cz wi_z wo_z)^n.
+//
+// | param | range       | default | meaning                                      |
+// |-------|-------------|---------|----------------------------------------------|
+// | rho   | [0, 1]      | 0.5     | lobe albedo scale (colour)                   |
+// | cx    | [-1, 1]     | -1      | weight of wi_x wo_x (x: tangent direction)   |
+// | cy    | [-1, 1]     | -1      | weight of wi_y wo_y                          |
+// | cz    | [-1, 1]     | 1       | weight of wi_z wo_z (z: normal)              |
+// | n     | [1e-3, 1e8] | 20      | lobe exponent, log scale (see brdf/phong.h)  |
+//
+// Relation to the paper's parameters: the paper writes a lobe as
+// rho_s [Cx ux vx + Cy uy vy + Cz uz vz]^n with the magnitude folded into C
+// (C_paper = c (rho_s (n + 2) / (2 pi))^(1/n) here); fitted that way the
+// magnitude and the direction of C are entangled through the exponent 1/n.
+// Here the scale is explicit in rho (n + 2)/(2 pi), and c = (cx, cy, cz) sets
+// the lobe axis normalize(cx wo_x, cy wo_y, cz wo_z) and, through |c o wo|^n,
+// how far the lobe is dimmed. Paper lobes with |C| beyond the ranges above map
+// to rho > 1 or are outside this table. Typical lobes: (-1, -1, 1) is the
+// normalised Phong lobe (model phong, exactly), (0, 0, 1) a non-Lambertian
+// diffuse lobe, (1, 1, 1) retro-reflection, |cx| = |cy| > |cz| off-specular
+// reflection growing towards grazing, cx != cy anisotropy.
+//
+// Several lobes are a sum: "lafortune+lafortune" (parameters lafortune.cx,
+// lafortune#2.cx, ...); add lambert for the paper's diffuse term.
+//
+// Reciprocal (the form is symmetric in wi, wo). Energy-conserving within the
+// ranges above: the base is (c o wo).wi <= |c o wo| cos(angle to the axis)
+// with |c o wo| <= 1, and a clipped cos^n lobe weighted by cos_theta_i
+// integrates over the hemisphere to at most 2 pi / (n + 2), reached with the
+// axis on the normal (the integral of two lobes decreasing away from their
+// axes is largest when the axes coincide), so E <= rho.
+// Sampling draws the cos^n lobe around the axis; samples below the horizon
+// are invalid. A lobe whose axis vanishes (c o wo = 0) is black and returns
+// no sample.
+#pragma once
+
+#include "brdf/core.h"
+#include "brdf/phong.h"
+
+#include <algorithm>
+
+namespace brdfkit {
+
+struct Lafortune {
+  explicit Lafortune(const Settings& = {}) {}
+
+  static ModelInfo Info() {
+    ModelInfo info;
+    info.name = "lafortune";
+    info.summary = "generalized cosine lobe rho (n+2)/(2 pi) (c o wi . wo)^n (Lafortune et al. 1997)";
+    info.params = {{"rho", 0.0, 1.0, 0.5, true, "lobe albedo scale"},
+                   {"cx", -1.0, 1.0, -1.0, false, "weight of wi_x wo_x"},
+                   {"cy", -1.0, 1.0, -1.0, false, "weight of wi_y wo_y"},
+                   {"cz", -1.0, 1.0, 1.0, false, "weight of wi_z wo_z"},
+                   PhongExponentParam()};
+    info.reciprocal = true;
+    info.energy_conserving = true;
+    return info;
+  }
+
+  template <typename T>
+  Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const {
+    if (!SameUpperHemisphere(wi, wo)) return Rgb<T>::Constant(T(0));
+    const T& n = p[6];
+    const T base = p[3] * wi.x() * wo.x() + p[4] * wi.y() * wo.y() + p[5] * wi.z() * wo.z();
+    const T lobe = (n + T(2)) * T(0.5 * kInvPi) * PowLobe(base, n);
+    return Rgb<T>(p[0], p[1], p[2]) * lobe;
+  }
+
+  // Unit lobe axis c o wo / |c o wo|; false when it vanishes.
+  template <typename T>
+  static bool Axis(const T* p, const Vec3<T>& wo, Vec3<T>& axis) {
+    using std::sqrt;
+    axis = Vec3<T>(p[3] * wo.x(), p[4] * wo.y(), p[5] * wo.z());
+    const T len2 = axis.squaredNorm();
+    if (len2 <= T(0)) return false;  // no axis: the lobe is zero everywhere
+    axis /= sqrt(len2);
+    return true;
+  }
+
+  template <typename T>
+  T Pdf(const T* p, const Vec3<T>& wo, const Vec3<T>& wi) const {
+    if (!SameUpperHemisphere(wi, wo)) return T(0);
+    Vec3<T> axis;
+    if (!Axis(p, wo, axis)) return T(0);
+    return CosinePowerLobePdf(axis, p[6], wi);
+  }
+
+  template <typename T>
+  BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const {
+    BsdfSample<T> s;
+    if (wo.z() <= T(0)) return s;
+    Vec3<T> axis;
+    if (!Axis(p, wo, axis)) return s;
+    s.wi = SampleCosinePowerLobe(axis, p[6], u1, u2);
+    if (s.wi.z() <= T(0)) return s;  // the lobe reaches below the horizon
+    s.pdf = Pdf(p, wo, s.wi);
+    s.valid = s.pdf > T(0);
+    return s;
+  }
+
+  // rho times max |c|^n, a bound on the lobe's albedo.
+  double SampleWeight(const double* p) const {
+    const double c = std::max({std::abs(p[3]), std::abs(p[4]), std::abs(p[5])});
+    return MeanRgb(p) * std::pow(c, p[6]);
+  }
+};
+
+}  // namespace brdfkit
