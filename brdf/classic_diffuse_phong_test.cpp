@@ -369,6 +369,20 @@ TEST(Lafortune, UniformCoefficientsDimTheLobeByCToTheN) {
   EXPECT_NEAR(e, 0.9 * std::pow(0.8, 5), 1e-12);
 }
 
+TEST(Lafortune, PaperParameterisationMapsAsDocumented) {
+  // Paper lobe [C o wi . wo]^n with C = (-0.9, -0.9, 0.7), n = 3:
+  // c = C / 0.9, rho = 2 pi / 5 * 0.9^3.
+  const Model m = Model::Parse("lafortune");
+  const auto b = m.Make<double>();
+  const double rho = 2 * kPi / 5 * std::pow(0.9, 3);
+  const std::vector<double> p = Params(m, "rho=" + FormatDouble(rho) + ",cx=-1,cy=-1,cz=" + FormatDouble(0.7 / 0.9) + ",n=3");
+  for (const auto& [wi, wo] : {std::pair{Dir(0.3, 0.1), Dir(0.5, 3.0)}, std::pair{Dir(1.2, 2.0), Dir(0.1, -1.0)},
+                               std::pair{Dir(0.9, 0.0), Dir(0.9, kPi)}}) {
+    const double base = -0.9 * wi.x() * wo.x() - 0.9 * wi.y() * wo.y() + 0.7 * wi.z() * wo.z();
+    EXPECT_NEAR(b->Eval(p.data(), wi, wo)[0], std::pow(std::max(base, 0.0), 3), 1e-14);
+  }
+}
+
 TEST(Lafortune, AlbedoStaysBelowRhoForGeneralLobes) {
   const Model m = Model::Parse("lafortune");
   const auto b = m.Make<double>();

@@ -12,16 +12,16 @@
 // | n     | [1e-3, 1e8] | 20      | lobe exponent, log scale (see brdf/phong.h)  |
 //
 // Relation to the paper's parameters: the paper writes a lobe as
-// rho_s [Cx ux vx + Cy uy vy + Cz uz vz]^n with the magnitude folded into C
-// (C_paper = c (rho_s (n + 2) / (2 pi))^(1/n) here); fitted that way the
-// magnitude and the direction of C are entangled through the exponent 1/n.
-// Here the scale is explicit in rho (n + 2)/(2 pi), and c = (cx, cy, cz) sets
-// the lobe axis normalize(cx wo_x, cy wo_y, cz wo_z) and, through |c o wo|^n,
-// how far the lobe is dimmed. Paper lobes with |C| beyond the ranges above map
-// to rho > 1 or are outside this table. Typical lobes: (-1, -1, 1) is the
-// normalised Phong lobe (model phong, exactly), (0, 0, 1) a non-Lambertian
-// diffuse lobe, (1, 1, 1) retro-reflection, |cx| = |cy| > |cz| off-specular
-// reflection growing towards grazing, cx != cy anisotropy.
+// [Cx ux vx + Cy uy vy + Cz uz vz]^n with its magnitude folded into C, so
+// magnitude and direction are entangled through the exponent. Here the scale
+// is explicit: a paper lobe C maps to c = C / max|C_k| and
+// rho = 2 pi / (n + 2) max|C_k|^n (rho > 1 is outside the range, and such a
+// lobe is not bound to conserve energy). c sets the lobe axis
+// normalize(cx wo_x, cy wo_y, cz wo_z) and, through |c o wo|^n, dims the lobe
+// where c o wo is short. Typical lobes: (-1, -1, 1) is the normalised Phong
+// lobe (model phong, exactly); (0, 0, 1) a non-Lambertian diffuse lobe;
+// (1, 1, 1) retro-reflection; -cx = -cy > cz forward reflection that grows
+// towards grazing (off-specular peak); cx != cy anisotropy.
 //
 // Several lobes are a sum: "lafortune+lafortune" (parameters lafortune.cx,
 // lafortune#2.cx, ...); add lambert for the paper's diffuse term.

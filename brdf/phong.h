@@ -20,8 +20,9 @@
 //
 // --- phong_original ------------------------------------------------------------
 // Phong 1975, "Illumination for Computer Generated Pictures", CACM 18(6):
-// the specular term W cos^n(alpha) of his shading formula is the reflected
-// radiance per unit incident irradiance, so as a BRDF
+// the specular term W cos^n(alpha) of his shading formula scales the light's
+// intensity without the cos(theta_i) that his diffuse term carries; per unit
+// irradiance (the BRDF's definition) it is
 //
 //   f_r = ks cos^n(alpha) / cos(theta_i).
 //
