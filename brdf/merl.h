@@ -92,9 +92,11 @@ class MerlTable {
   // Unfolded conversion. wi and wo need not be unit vectors.
   static HalfDiff ToHalfDiff(const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) {
     HalfDiff r;
+    Eigen::Vector3d h;
     double dx, dy, dz;
-    Frame(wi, wo, r.theta_h, r.phi_h, dx, dy, dz);
-    r.theta_d = std::atan2(std::hypot(dx, dy), dz);
+    Frame(wi, wo, h, r.theta_h, dx, dy, dz);
+    r.phi_h = std::atan2(h.y(), h.x());
+    r.theta_d = std::atan2(std::sqrt(dx * dx + dy * dy), dz);
     r.phi_d = std::atan2(dy, dx);
     return r;
   }
@@ -118,9 +120,10 @@ class MerlTable {
   // angles (exact reciprocity of every lookup).
   static void DirectionsToHalfDiff(const Eigen::Vector3d& wi, const Eigen::Vector3d& wo, double& theta_h,
                                    double& theta_d, double& phi_d) {
-    double phi_h, dx, dy, dz;
-    Frame(wi, wo, theta_h, phi_h, dx, dy, dz);
-    theta_d = std::atan2(std::hypot(dx, dy), dz);
+    Eigen::Vector3d h;
+    double dx, dy, dz;
+    Frame(wi, wo, h, theta_h, dx, dy, dz);
+    theta_d = std::atan2(std::sqrt(dx * dx + dy * dy), dz);
     if (dy < 0 || (dy == 0 && dx < 0)) {
       dx = -dx;
       dy = -dy;
@@ -347,22 +350,21 @@ class MerlTable {
   }
 
  private:
-  // h's polar angles and the difference vector d = (dx, dy, dz) of wi. d is
+  // h, theta_h and the difference vector d = (dx, dy, dz) of wi. d is
   // computed from (wi - wo) / 2, whose rotation into the half frame is
   // (dx, dy, 0) because wo is the mirror of wi about h, and dz = cos theta_d
   // = |wi + wo| / 2: swapping wi and wo negates dx, dy exactly and leaves
   // dz and h unchanged.
-  static void Frame(const Eigen::Vector3d& wi_in, const Eigen::Vector3d& wo_in, double& theta_h, double& phi_h,
+  static void Frame(const Eigen::Vector3d& wi_in, const Eigen::Vector3d& wo_in, Eigen::Vector3d& h, double& theta_h,
                     double& dx, double& dy, double& dz) {
     const Eigen::Vector3d wi = wi_in.normalized(), wo = wo_in.normalized();
     const Eigen::Vector3d sum = wi + wo, diff = wi - wo;
     const double sum_norm = sum.norm();
     // wi = -wo leaves h undefined; take the normal (no lookup reaches this:
     // one of the two directions is then below the horizon).
-    const Eigen::Vector3d h = sum_norm > 0 ? Eigen::Vector3d(sum / sum_norm) : Eigen::Vector3d(0, 0, 1);
-    const double sin_h = std::hypot(h.x(), h.y());
+    h = sum_norm > 0 ? Eigen::Vector3d(sum / sum_norm) : Eigen::Vector3d(0, 0, 1);
+    const double sin_h = std::sqrt(h.x() * h.x() + h.y() * h.y());
     theta_h = std::atan2(sin_h, h.z());
-    phi_h = std::atan2(h.y(), h.x());
     // cos and sin of phi_h; h on the normal has phi_h = 0.
     const double c = sin_h > 0 ? h.x() / sin_h : 1.0, s = sin_h > 0 ? h.y() / sin_h : 0.0;
     const double ux = 0.5 * (c * diff.x() + s * diff.y());  // rotated by -phi_h about the normal
