@@ -7,11 +7,14 @@
 #include <tuple>
 
 #include "brdf/lambert.h"
-#include "brdf/merl.h"
 #include "brdf/microfacet.h"
 #include "brdf/oren_nayar.h"
 #include "brdf/phong.h"
 #include "brdf/lafortune.h"
+#include "brdf/torrance_sparrow.h"
+#include "brdf/ward.h"
+#include "brdf/ashikhmin_shirley.h"
+#include "brdf/merl.h"
 
 namespace brdfkit {
 
@@ -30,6 +33,12 @@ using RegisteredModels = std::tuple<
     GgxSeparable,
     GgxDielectric,
     GgxConductor,
+    TorranceSparrow,
+    CookTorrance,
+    Ward,
+    WardDuer,
+    WardGmd,
+    AshikhminShirley,
     Merl>;
 
 }  // namespace brdfkit
