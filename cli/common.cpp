@@ -15,6 +15,7 @@ void AddModelOptions(CLI::App* cmd, ModelArgs& args, bool required) {
 }
 
 LoadedModel LoadModel(const ModelArgs& args) {
+  if (args.model.rfind("fit:", 0) == 0) return LoadFitModel(args.model.substr(4));  // a saved fit result
   // Settings (e.g. path=) of a single-lobe model are given with the parameters.
   Settings settings;
   std::string numeric;

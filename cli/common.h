@@ -44,5 +44,6 @@ nlohmann::json ModelInfoJson(const ModelInfo& info);
 void RegisterModels(CLI::App& app);
 void RegisterEval(CLI::App& app);
 void RegisterRun(CLI::App& app);
+void RegisterFit(CLI::App& app);  LoadedModel LoadFitModel(const std::string& path);  // cmd_fit.cpp
 
 }  // namespace brdfkit::cli

@@ -11,6 +11,7 @@ int main(int argc, char** argv) {
   brdfkit::cli::RegisterModels(app);
   brdfkit::cli::RegisterEval(app);
   brdfkit::cli::RegisterRun(app);
+  brdfkit::cli::RegisterFit(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

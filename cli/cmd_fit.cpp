@@ -1,0 +1,267 @@
+// brdfkit fit: least-squares fit of a model to tabulated reflectance.
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <iostream>
+#include <sstream>
+
+#include "brdf/atomic_file.h"
+#include "cli/common.h"
+#include "data_synth/instrument.h"
+#include "fit/fit.h"
+
+namespace brdfkit::cli {
+namespace {
+
+nlohmann::json Number(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); }
+
+// name -> value, or [r, g, b] for colour parameters.
+nlohmann::json ParamsJson(const ModelInfo& info, const std::vector<double>& packed) {
+  nlohmann::json j = nlohmann::json::object();
+  std::size_t k = 0;
+  for (const ParamInfo& p : info.params) {
+    if (p.colour) {
+      j[p.name] = {Number(packed[k]), Number(packed[k + 1]), Number(packed[k + 2])};
+      k += 3;
+    } else {
+      j[p.name] = Number(packed[k++]);
+    }
+  }
+  return j;
+}
+
+nlohmann::json ResultJson(const fit::Result& r, const fit::Options& o) {
+  const ModelInfo& info = r.model.Info();
+  nlohmann::json j;
+  j["model"] = r.model.Spec();
+  j["params"] = ParamsJson(info, r.params);
+  j["stddev"] = ParamsJson(info, r.stddev);
+  if (r.covariance_ok) {
+    nlohmann::json m = nlohmann::json::array();
+    for (Eigen::Index i = 0; i < r.correlation.rows(); ++i) {
+      nlohmann::json row = nlohmann::json::array();
+      for (Eigen::Index k = 0; k < r.correlation.cols(); ++k) row.push_back(Number(r.correlation(i, k)));
+      m.push_back(row);
+    }
+    j["correlation"] = {{"names", r.packed_names}, {"matrix", m}};
+  } else {
+    j["correlation"] = nullptr;
+  }
+  j["uncertainty"] = r.covariance_message.empty() ? "ok" : r.covariance_message;
+  j["metric"] = fit::MetricName(o.metric);
+  j["solver"] = fit::LinearSolverName(o.solver);
+  j["loss"] = o.loss == fit::Loss::kNone ? "none" : (o.loss == fit::Loss::kHuber ? "huber" : "cauchy");
+  if (o.loss != fit::Loss::kNone) j["loss_scale"] = r.loss_scale;
+  j["cost"] = r.cost;
+  j["rmse"] = r.rmse;
+  j["chi2_reduced"] = r.chi2_reduced;
+  j["iterations"] = r.iterations;
+  j["starts"] = r.starts;
+  j["seconds"] = r.seconds;
+  j["converged"] = r.converged;
+  j["message"] = r.message;
+  j["samples"] = r.used;
+  j["missing"] = r.missing;
+  j["dropped_angle"] = r.dropped_angle;
+  nlohmann::json trace = nlohmann::json::array();
+  for (const fit::TracePoint& t : r.trace)
+    trace.push_back({{"iteration", t.iteration}, {"seconds", t.seconds}, {"cost", t.cost}, {"rmse", t.rmse}});
+  j["trace"] = trace;
+  return j;
+}
+
+std::string TraceCsv(const fit::Result& r) {
+  std::string s = "iteration,seconds,cost,rmse\n";
+  char buf[128];
+  for (const fit::TracePoint& t : r.trace) {
+    std::snprintf(buf, sizeof buf, "%d,%.9g,%.17g,%.17g\n", t.iteration, t.seconds, t.cost, t.rmse);
+    s += buf;
+  }
+  return s;
+}
+
+// "huber", "cauchy:0.5".
+void ParseLoss(const std::string& text, fit::Options& o) {
+  const std::string name = text.substr(0, text.find(':'));
+  if (name == "none") o.loss = fit::Loss::kNone;
+  else if (name == "huber") o.loss = fit::Loss::kHuber;
+  else if (name == "cauchy") o.loss = fit::Loss::kCauchy;
+  else throw UsageError("--loss: unknown loss '" + name + "' (expected none, huber or cauchy, optionally :scale)");
+  if (text.find(':') != std::string::npos) {
+    const std::string v = text.substr(text.find(':') + 1);
+    if (!ParseDouble(v, o.loss_scale) || !(o.loss_scale > 0) || !std::isfinite(o.loss_scale))
+      throw UsageError("--loss: scale '" + v + "' is not a positive number");
+  }
+}
+
+// Metric RMSE against seconds, log-log, as a standalone SVG.
+void WriteTracePlot(const std::string& path, const fit::Result& r) {
+  std::vector<double> x, y;
+  for (const fit::TracePoint& t : r.trace)
+    if (t.seconds > 0 && t.rmse > 0) {
+      x.push_back(std::log10(t.seconds));
+      y.push_back(std::log10(t.rmse));
+    }
+  const double W = 640, H = 420, L = 80, R = 20, T = 40, B = 60;
+  double x0 = 0, x1 = 1, y0 = 0, y1 = 1;
+  if (!x.empty()) {
+    x0 = std::floor(*std::min_element(x.begin(), x.end()));
+    x1 = std::ceil(*std::max_element(x.begin(), x.end()));
+    y0 = std::floor(*std::min_element(y.begin(), y.end()));
+    y1 = std::ceil(*std::max_element(y.begin(), y.end()));
+    if (x1 <= x0) x1 = x0 + 1;
+    if (y1 <= y0) y1 = y0 + 1;
+  }
+  auto px = [&](double v) { return L + (v - x0) / (x1 - x0) * (W - L - R); };
+  auto py = [&](double v) { return H - B - (v - y0) / (y1 - y0) * (H - T - B); };
+  std::ostringstream s;
+  s << "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"" << W << "\" height=\"" << H
+    << "\" font-family=\"sans-serif\" font-size=\"12\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n";
+  s << "<text x=\"" << W / 2 << "\" y=\"24\" text-anchor=\"middle\">fit " << r.model.Spec() << ": "
+    << fit::MetricName(r.metric) << " rmse against run time</text>\n";
+  for (double e = x0; e <= x1; e += 1)
+    s << "<line x1=\"" << px(e) << "\" y1=\"" << py(y0) << "\" x2=\"" << px(e) << "\" y2=\"" << py(y1)
+      << "\" stroke=\"#ddd\"/><text x=\"" << px(e) << "\" y=\"" << H - B + 16
+      << "\" text-anchor=\"middle\">1e" << e << "</text>\n";
+  for (double e = y0; e <= y1; e += 1)
+    s << "<line x1=\"" << px(x0) << "\" y1=\"" << py(e) << "\" x2=\"" << px(x1) << "\" y2=\"" << py(e)
+      << "\" stroke=\"#ddd\"/><text x=\"" << L - 6 << "\" y=\"" << py(e) + 4
+      << "\" text-anchor=\"end\">1e" << e << "</text>\n";
+  s << "<text x=\"" << (L + W - R) / 2 << "\" y=\"" << H - 20 << "\" text-anchor=\"middle\">seconds</text>\n";
+  s << "<text x=\"20\" y=\"" << (T + H - B) / 2 << "\" transform=\"rotate(-90 20 " << (T + H - B) / 2
+    << ")\" text-anchor=\"middle\">rmse</text>\n<polyline fill=\"none\" stroke=\"#1f77b4\" stroke-width=\"2\" points=\"";
+  for (std::size_t k = 0; k < x.size(); ++k) s << px(x[k]) << "," << py(y[k]) << " ";
+  s << "\"/>\n</svg>\n";
+  WriteFileAtomic(path, s.str());
+}
+
+}  // namespace
+
+LoadedModel LoadFitModel(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw UsageError("cannot read fit result '" + path + "'");
+  nlohmann::json j;
+  try {
+    j = nlohmann::json::parse(in);
+  } catch (const nlohmann::json::exception& e) {
+    throw UsageError("fit result '" + path + "' is not valid JSON: " + e.what());
+  }
+  if (!j.is_object() || !j.contains("model") || !j["model"].is_string() || !j.contains("params") ||
+      !j["params"].is_object())
+    throw UsageError("fit result '" + path + "' lacks \"model\" (string) and \"params\" (object)");
+  LoadedModel out{Model::Parse(j["model"].get<std::string>()), {}};
+  const ModelInfo& info = out.model.Info();
+  out.params = info.Defaults();
+  for (std::size_t i = 0; i < info.params.size(); ++i) {
+    const ParamInfo& p = info.params[i];
+    if (!j["params"].contains(p.name)) throw UsageError("fit result '" + path + "': no value for '" + p.name + "'");
+    const nlohmann::json& v = j["params"][p.name];
+    const std::size_t off = info.Offset(i);
+    if (p.colour && v.is_array() && v.size() == 3 && v[0].is_number() && v[1].is_number() && v[2].is_number()) {
+      for (int c = 0; c < 3; ++c) out.params[off + c] = v[c].get<double>();
+    } else if (v.is_number()) {
+      for (int c = 0; c < (p.colour ? 3 : 1); ++c) out.params[off + c] = v.get<double>();
+    } else {
+      throw UsageError("fit result '" + path + "': '" + p.name + "' must be " +
+                       (p.colour ? "a number or [r, g, b]" : "a number"));
+    }
+  }
+  try {
+    ValidateParams(info, out.params);
+  } catch (const ModelError& e) {
+    throw UsageError("fit result '" + path + "': " + e.what());
+  }
+  return out;
+}
+
+void RegisterFit(CLI::App& app) {
+  auto* cmd = app.add_subcommand("fit", "fit a model to tabulated reflectance (CSV table or MERL binary) with Ceres");
+  static std::string data, model, init, metric = "l2", loss = "none", solver = "dense_qr", instrument, out, trace,
+                     trace_plot;
+  static double max_theta = -1;
+  static int threads = 2, max_iter = 200, starts = 5, aperture_order = 0;
+  static bool json = false, no_cov = false, ignore_sigma = false;
+  cmd->add_option("--data,-d", data, "CSV table (theta_i,phi_i,theta_o,phi_o,f_r,f_g,f_b[,sigma_*]) or MERL .binary")
+      ->required();
+  cmd->add_option("--model,-m", model, "model or sum of lobes (lambert+ggx), or fit:FILE to refine a previous fit")
+      ->required();
+  cmd->add_option("--init", init, "initial guess name=value,... (default: multi-start over roughness-like parameters)");
+  cmd->add_option("--metric", metric, "l2, relative, cosine (Ngan 2005), log (Low 2012) or cbrt (Fores 2012)");
+  cmd->add_option("--max-theta-deg", max_theta, "drop samples with theta_i or theta_o above this (default 80 for cosine)");
+  cmd->add_option("--loss", loss, "robust loss: none, huber or cauchy, with optional :scale");
+  cmd->add_option("--solver", solver, "linear solver: dense_qr, dense_normal_cholesky, iterative_schur or cgnr");
+  cmd->add_option("--threads", threads, "threads (default 2)");
+  cmd->add_option("--max-iterations", max_iter, "iterations of the final solve (default 200)");
+  cmd->add_option("--starts", starts, "starts per roughness-like parameter (default 5)");
+  cmd->add_flag("--no-covariance", no_cov, "skip the uncertainty computation");
+  cmd->add_flag("--ignore-sigma", ignore_sigma, "do not weight by the table's sigma columns");
+  cmd->add_option("--instrument", instrument, "instrument JSON: fit through its finite apertures");
+  cmd->add_option("--aperture-order", aperture_order, "aperture quadrature order for --instrument (default: its own, or 3)");
+  cmd->add_flag("--json", json, "print the result as JSON");
+  cmd->add_option("--out,-o", out, "write the result JSON to FILE (usable as --model fit:FILE)");
+  cmd->add_option("--trace", trace, "write the per-iteration trace (seconds, cost, rmse) as CSV");
+  cmd->add_option("--trace-plot", trace_plot, "draw the trace (metric against time) as SVG");
+  cmd->callback([] {
+    fit::Options o;
+    try {
+      o.metric = fit::ParseMetric(metric);
+      o.solver = fit::ParseLinearSolver(solver);
+    } catch (const std::invalid_argument& e) {
+      throw UsageError(e.what());
+    }
+    ParseLoss(loss, o);
+    if (max_theta != -1 && !(max_theta > 0 && max_theta <= 90))
+      throw UsageError("--max-theta-deg must be in (0, 90]");
+    if (threads < 1) throw UsageError("--threads must be at least 1");
+    if (max_iter < 1) throw UsageError("--max-iterations must be at least 1");
+    if (starts < 1) throw UsageError("--starts must be at least 1");
+    o.max_theta_deg = max_theta;
+    o.num_threads = threads;
+    o.max_iterations = max_iter;
+    o.starts_per_param = starts;
+    o.covariance = !no_cov;
+    o.use_sigma = !ignore_sigma;
+
+    Model m = Model::Parse("lambert");
+    if (model.rfind("fit:", 0) == 0) {
+      LoadedModel lm = LoadFitModel(model.substr(4));
+      m = lm.model;
+      if (init.empty()) o.initial = lm.params;
+    } else {
+      m = Model::Parse(model);
+    }
+    if (!init.empty()) o.initial = ParseParams(m.Info(), init);
+
+    synth::Instrument inst;
+    if (!instrument.empty()) {
+      inst = synth::LoadInstrument(instrument);
+      o.instrument = &inst;
+      o.aperture_order = aperture_order;
+    }
+    const fit::Dataset ds = fit::LoadDataset(data);
+    if (ds.missing > 0)
+      std::fprintf(stderr, "brdfkit: %zu missing sample(s) in '%s' skipped\n", ds.missing, data.c_str());
+    const fit::Result r = fit::Fit(m, ds, o);
+    const nlohmann::json j = ResultJson(r, o);
+    if (!out.empty()) WriteFileAtomic(out, j.dump(2) + "\n");
+    if (!trace.empty()) WriteFileAtomic(trace, TraceCsv(r));
+    if (!trace_plot.empty()) WriteTracePlot(trace_plot, r);
+    if (json) {
+      std::cout << j.dump(2) << "\n";
+      return;
+    }
+    std::printf("model    %s\n", r.model.Spec().c_str());
+    const std::vector<std::string> names = r.packed_names;
+    for (std::size_t k = 0; k < names.size(); ++k)
+      std::printf("  %-24s %.9g +- %.3g\n", names[k].c_str(), r.params[k], r.stddev[k]);
+    std::printf("metric   %s, rmse %.6g, cost %.6g, %d iterations (%d starts), %.3f s, %s\n",
+                fit::MetricName(o.metric).c_str(), r.rmse, r.cost, r.iterations, r.starts, r.seconds,
+                r.converged ? "converged" : "NOT converged");
+    std::printf("samples  %zu used, %zu missing, %zu beyond the angle cut\n", r.used, r.missing, r.dropped_angle);
+    if (!r.covariance_message.empty()) std::printf("note     %s\n", r.covariance_message.c_str());
+    if (!r.converged) std::printf("solver   %s\n", r.message.c_str());
+  });
+}
+
+}  // namespace brdfkit::cli

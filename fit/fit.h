@@ -1,0 +1,178 @@
+// Fitting BRDF models to tabulated reflectance with Ceres.
+//
+// Residuals are differentiated automatically through the templated models
+// (ceres::Jet), grouped in blocks of a few hundred samples. Parameters whose
+// ParamInfo scale is kLog (roughness, exponents) are optimised as log(p) so
+// that values spread over orders of magnitude converge; bounds from the
+// ParamInfo table go to the problem (SetParameterLowerBound/UpperBound), in
+// the transformed space. Uncertainties come from ceres::Covariance, mapped
+// back to the user's parameters through the Jacobian of the transform.
+//
+// Metrics (residual of one sample and channel, model f, reference g):
+//   l2        f - g
+//   relative  (f - g) / max(g, floor), floor = 1e-3 x the mean of g
+//   cosine    (f - g) cos(theta_i), theta beyond 80 degrees dropped
+//             (Ngan, Durand, Matusik 2005, "Experimental analysis of BRDF
+//             models", sec. 4)
+//   log       log(1 + f cos_i) - log(1 + g cos_i)
+//             (Low, Kronander, Ynnerman, Unger 2012, "BRDF models for
+//             accurate and efficient rendering of glossy surfaces", eq. 13)
+//   cbrt      cbrt(f cos_i) - cbrt(g cos_i)
+//             (Fores, Ferwerda, Gu 2012, "Toward a perceptually based metric
+//             for BRDF modeling": the cube root follows perceived lightness)
+// With per-sample standard deviations sigma, each residual is divided by its
+// own standard deviation propagated through the metric (first order), so the
+// cost is chi^2 / 2 and the covariance needs no rescaling; without them the
+// covariance is scaled by the residual variance 2 cost / (m - n).
+#pragma once
+
+#include <Eigen/Core>
+
+#include <cstddef>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "brdf/model.h"
+
+namespace ceres {
+class CostFunction;
+}
+
+namespace brdfkit {
+class MerlTable;
+namespace synth {
+struct BrdfTable;
+struct Instrument;
+}  // namespace synth
+}  // namespace brdfkit
+
+namespace brdfkit::fit {
+
+enum class Metric { kL2, kRelative, kCosine, kLog, kCbrt };
+enum class Loss { kNone, kHuber, kCauchy };
+
+Metric ParseMetric(const std::string& name);  // throws std::invalid_argument
+std::string MetricName(Metric m);
+
+// One measurement: directions in the local frame (unit, z = normal), f_r per
+// channel in 1/sr, and its standard deviation (0 when unknown).
+struct Sample {
+  Eigen::Vector3d wi, wo;
+  Eigen::Array3d f, sigma;
+};
+
+struct Dataset {
+  std::vector<Sample> samples;
+  bool has_sigma = false;
+  std::size_t missing = 0;  // samples dropped because a value was missing
+  std::string source;       // file name, for messages
+};
+
+Dataset FromTable(const synth::BrdfTable& table, const std::string& source = "");
+// Bin centres of a MERL table (phi_h = 0); a cell missing in any channel or
+// whose centre puts a direction at the horizon is counted in `missing`.
+Dataset FromMerl(const MerlTable& table, const std::string& source = "");
+// Reads a MERL binary (by the MERL header) or a CSV table.
+Dataset LoadDataset(const std::string& path);
+
+enum class LinearSolver { kDenseQr, kDenseNormalCholesky, kIterativeSchur, kCgnr };
+LinearSolver ParseLinearSolver(const std::string& name);  // throws std::invalid_argument
+std::string LinearSolverName(LinearSolver s);
+
+struct Options {
+  Metric metric = Metric::kL2;
+  // Samples with theta_i or theta_o above this are dropped. Negative: 80
+  // degrees for the cosine metric (as Ngan et al.), no cut otherwise.
+  double max_theta_deg = -1;
+  Loss loss = Loss::kNone;
+  // Robust loss scale in units of the residual. Non-positive: 3 when the data
+  // has sigma (three standard deviations), otherwise 3 x 1.4826 x the median
+  // absolute residual at the starting point (a robust standard deviation).
+  double loss_scale = 0;
+  bool use_sigma = true;  // weight by 1/sigma when the data has it
+  LinearSolver solver = LinearSolver::kDenseQr;
+  int num_threads = 2;
+  int max_iterations = 200;
+  double function_tolerance = 1e-14;
+  double gradient_tolerance = 1e-16;
+  double parameter_tolerance = 1e-12;
+  std::size_t chunk = 256;  // samples per residual block
+  // Starting point (packed, user space). Empty: multi-start (below).
+  std::vector<double> initial;
+  // Multi-start: log-spaced starts of every log-scale parameter, each solved
+  // on a random subset of at most `start_subset` samples for at most
+  // `start_iterations` iterations; the best start is refined on all data.
+  int starts_per_param = 5;
+  std::size_t start_subset = 4096;
+  int start_iterations = 20;
+  bool covariance = true;
+  // Fit through the instrument's finite apertures (data_synth forward model).
+  const synth::Instrument* instrument = nullptr;
+  int aperture_order = 0;  // 0: the instrument's own setting, or 3 when automatic
+  // Called after every iteration of the final solve (progress display).
+  std::function<void(int iteration, double seconds, double cost)> progress;
+};
+
+struct TracePoint {
+  int iteration = 0;
+  double seconds = 0;  // since the start of Fit (initialisation included)
+  double cost = 0;
+  double rmse = 0;     // root mean square of the metric's residuals
+};
+
+struct Result {
+  Model model;
+  Metric metric = Metric::kL2;
+  std::vector<double> params;  // packed, user space
+  std::vector<double> stddev;  // packed; NaN where not determined
+  Eigen::MatrixXd correlation; // packed x packed; empty when not computed
+  std::vector<std::string> packed_names;  // "lambert.albedo.r", "ggx.alpha", ...
+  bool covariance_ok = false;
+  std::string covariance_message;  // plain words when uncertainties are missing
+  double cost = 0;
+  double rmse = 0;           // of the chosen metric, unweighted, over the samples used
+  double chi2_reduced = 0;   // 2 cost / (m - n)
+  std::size_t residuals = 0;
+  std::size_t used = 0;      // samples used
+  std::size_t dropped_angle = 0;  // samples beyond max theta
+  std::size_t missing = 0;
+  int iterations = 0;
+  int starts = 0;
+  double init_seconds = 0;
+  double seconds = 0;        // total, covariance included
+  double solve_seconds = 0;  // initialisation and solve, without covariance
+  bool converged = false;
+  std::string message;
+  double loss_scale = 0;
+  std::vector<TracePoint> trace;
+};
+
+Result Fit(const Model& model, const Dataset& data, const Options& options);
+
+// Names of the packed slots: colour parameters get .r, .g, .b.
+std::vector<std::string> PackedNames(const ModelInfo& info);
+
+// Metric residuals (unweighted) of packed parameters over the samples the
+// options select; returns their root mean square.
+double MetricRmse(const Model& model, const std::vector<double>& params, const Dataset& data,
+                  const Options& options);
+
+// The residual blocks Fit builds (chunks of samples over one parameter
+// block of internal parameters: log of the log-scale ones), for checks.
+class ResidualBlocks {
+ public:
+  ResidualBlocks(const Model& model, const Dataset& data, const Options& options, double loss_scale = 1.0);
+  ~ResidualBlocks();
+  std::size_t size() const;
+  const ceres::CostFunction& block(std::size_t k) const;
+  std::vector<double> ToInternal(const std::vector<double>& params) const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace brdfkit::fit

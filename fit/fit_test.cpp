@@ -1,0 +1,343 @@
+#include "fit/fit.h"
+
+#include <ceres/ceres.h>
+#include <ceres/gradient_checker.h>
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <sstream>
+
+#include <nlohmann/json.hpp>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include "brdf/merl.h"
+#include "brdf/model.h"
+#include "brdf/params.h"
+#include "data_synth/forward_model.h"
+#include "data_synth/instrument.h"
+#include "data_synth/table_io.h"
+
+namespace brdfkit::fit {
+namespace {
+
+namespace fs = std::filesystem;
+
+Eigen::Vector3d Spherical(double theta, double phi) {
+  return Eigen::Vector3d(std::sin(theta) * std::cos(phi), std::sin(theta) * std::sin(phi), std::cos(theta));
+}
+
+// Direction pairs with theta up to 80 degrees: half spread over the
+// hemisphere, half near the mirror direction (where narrow lobes live).
+std::vector<std::pair<Eigen::Vector3d, Eigen::Vector3d>> Directions(int n, std::uint64_t seed,
+                                                                    double spread = 0.3) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::normal_distribution<double> g(0.0, 1.0);
+  const double max_theta = 80.0 * kPi / 180.0;
+  std::vector<std::pair<Eigen::Vector3d, Eigen::Vector3d>> out;
+  while (static_cast<int>(out.size()) < n) {
+    const Eigen::Vector3d wi = Spherical(std::acos(1 - u(rng) * (1 - std::cos(max_theta))), 2 * kPi * u(rng));
+    Eigen::Vector3d wo;
+    if (out.size() % 2 == 0) {
+      wo = Spherical(std::acos(1 - u(rng) * (1 - std::cos(max_theta))), 2 * kPi * u(rng));
+    } else {
+      const Eigen::Vector3d h = Spherical(std::abs(g(rng)) * spread, 2 * kPi * u(rng));
+      wo = 2 * wi.dot(h) * h - wi;
+      if (wo.z() < std::cos(max_theta)) continue;
+    }
+    out.emplace_back(wi, wo);
+  }
+  return out;
+}
+
+// Samples of a model; noise > 0 adds Gaussian noise of standard deviation
+// noise * f + floor, recorded as sigma.
+Dataset Synthesise(const Model& m, const std::vector<double>& p, int n, std::uint64_t seed, double noise = 0,
+                   double floor = 0) {
+  const auto b = m.Make<double>();
+  Dataset d;
+  d.has_sigma = noise > 0;
+  std::mt19937_64 rng(seed * 7919 + 1);
+  std::normal_distribution<double> g(0.0, 1.0);
+  for (const auto& [wi, wo] : Directions(n, seed)) {
+    Sample s{wi, wo, b->Eval(p.data(), wi, wo), Eigen::Array3d::Zero()};
+    if (noise > 0) {
+      s.sigma = noise * s.f + floor;
+      for (int c = 0; c < 3; ++c) s.f[c] += s.sigma[c] * g(rng);
+    }
+    d.samples.push_back(s);
+  }
+  return d;
+}
+
+void ExpectRecovered(const Result& r, const std::vector<double>& truth, double tol) {
+  ASSERT_EQ(r.params.size(), truth.size());
+  for (std::size_t k = 0; k < truth.size(); ++k)
+    EXPECT_NEAR(r.params[k], truth[k], tol * std::abs(truth[k])) << r.packed_names[k] << " (" << r.message << ")";
+}
+
+struct Case {
+  const char* model;
+  const char* params;
+};
+
+class NoiselessRecovery : public ::testing::TestWithParam<Case> {};
+
+TEST_P(NoiselessRecovery, EveryParameterFromDefaultStart) {
+  const Model m = Model::Parse(GetParam().model);
+  const std::vector<double> truth = ParseParams(m.Info(), GetParam().params);
+  const Dataset d = Synthesise(m, truth, 600, 11);
+  Options o;
+  const Result r = Fit(m, d, o);
+  ExpectRecovered(r, truth, 1e-6);
+  EXPECT_LT(r.rmse, 1e-8);
+  EXPECT_GT(r.starts, 1);
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    Models, NoiselessRecovery,
+    ::testing::Values(Case{"lambert+ggx", "lambert.albedo=0.3:0.2:0.1,ggx.alpha=0.15,ggx.f0=0.9:0.7:0.5"},
+                      // A narrow lobe: alpha three orders below the albedo needs the log scale.
+                      Case{"lambert+ggx", "lambert.albedo=0.6:0.5:0.4,ggx.alpha=0.02,ggx.f0=0.05:0.04:0.03"},
+                      Case{"cook_torrance", "ks=0.8:0.6:0.4,m=0.25,eta=1.8:2.2:3"},
+                      Case{"ward", "rho_d=0.4:0.3:0.2,rho_s=0.08:0.06:0.05,alpha_x=0.12,alpha_y=0.3"}),
+    [](const ::testing::TestParamInfo<Case>& info) {
+      std::string s = std::string(info.param.model) + "_" + std::to_string(info.index);
+      for (char& c : s)
+        if (!std::isalnum(static_cast<unsigned char>(c))) c = '_';
+      return s;
+    });
+
+TEST(Fit, EveryMetricRecoversNoiselessTruth) {
+  const Model m = Model::Parse("lambert+ggx");
+  const std::vector<double> truth = ParseParams(m.Info(), "lambert.albedo=0.3:0.2:0.1,ggx.alpha=0.1,ggx.f0=0.9:0.7:0.5");
+  const Dataset d = Synthesise(m, truth, 400, 5);
+  for (Metric metric : {Metric::kL2, Metric::kRelative, Metric::kCosine, Metric::kLog, Metric::kCbrt}) {
+    Options o;
+    o.metric = metric;
+    o.solver = LinearSolver::kDenseNormalCholesky;
+    if (metric == Metric::kCosine) o.max_theta_deg = 70;  // the data reach 80 degrees
+    const Result r = Fit(m, d, o);
+    SCOPED_TRACE(MetricName(metric));
+    ExpectRecovered(r, truth, 1e-6);
+    if (metric == Metric::kCosine) EXPECT_GT(r.dropped_angle, 0u);
+    ASSERT_FALSE(r.trace.empty());
+    EXPECT_LE(r.trace.back().rmse, r.trace.front().rmse);
+  }
+}
+
+// Noisy data with known sigma: the estimates scatter about the truth as the
+// reported standard deviations say.
+TEST(Fit, ReportedUncertaintyMatchesSpread) {
+  const Model m = Model::Parse("lambert+ggx");
+  const std::vector<double> truth = ParseParams(m.Info(), "lambert.albedo=0.4:0.3:0.2,ggx.alpha=0.2,ggx.f0=0.8:0.6:0.4");
+  const std::size_t n = truth.size();
+  for (bool with_sigma : {true, false}) {
+    SCOPED_TRACE(with_sigma ? "sigma given" : "sigma from the residuals");
+    const int seeds = 100;
+    std::vector<Eigen::VectorXd> est;
+    Eigen::VectorXd mean_sd = Eigen::VectorXd::Zero(n);
+    int outside = 0;
+    for (int seed = 0; seed < seeds; ++seed) {
+      // Constant sigma: the residual-variance scaling is then exact.
+      Dataset d = Synthesise(m, truth, 150, 1000 + seed, 1e-12, 0.01);
+      d.has_sigma = with_sigma;
+      Options o;
+      o.initial = truth;
+      const Result r = Fit(m, d, o);
+      ASSERT_TRUE(r.covariance_ok) << r.covariance_message;
+      Eigen::VectorXd e(n);
+      for (std::size_t k = 0; k < n; ++k) {
+        e(k) = r.params[k];
+        mean_sd(k) += r.stddev[k] / seeds;
+        if (std::abs(r.params[k] - truth[k]) > 3 * r.stddev[k]) ++outside;
+      }
+      est.push_back(e);
+    }
+    // 3 sigma: 0.27 % expected outside; 7 x 100 checks.
+    EXPECT_LE(outside, 6);
+    Eigen::VectorXd mean = Eigen::VectorXd::Zero(n);
+    for (const auto& e : est) mean += e / seeds;
+    for (std::size_t k = 0; k < n; ++k) {
+      double var = 0;
+      for (const auto& e : est) var += (e(k) - mean(k)) * (e(k) - mean(k));
+      const double spread = std::sqrt(var / (seeds - 1));
+      EXPECT_NEAR(mean_sd(k) / spread, 1.0, 0.2) << "parameter " << k;
+    }
+  }
+}
+
+TEST(Fit, EveryResidualPassesGradientChecker) {
+  const Model m = Model::Parse("lambert+ggx");
+  const std::vector<double> p = ParseParams(m.Info(), "lambert.albedo=0.3:0.2:0.1,ggx.alpha=0.15,ggx.f0=0.9:0.7:0.5");
+  Dataset d = Synthesise(m, p, 64, 3, 0.05, 1e-3);
+  // Evaluate away from the truth so residuals are not zero.
+  std::vector<double> at = p;
+  at[3] = 0.11;
+  at[0] = 0.35;
+  for (Metric metric : {Metric::kL2, Metric::kRelative, Metric::kCosine, Metric::kLog, Metric::kCbrt})
+    for (Loss loss : {Loss::kNone, Loss::kHuber, Loss::kCauchy}) {
+      Options o;
+      o.metric = metric;
+      o.loss = loss;
+      o.chunk = 16;
+      const ResidualBlocks blocks(m, d, o, 0.5);
+      const std::vector<double> u = blocks.ToInternal(at);
+      const double* params[1] = {u.data()};
+      // Small first step of the Ridders extrapolation: a larger one would cross
+      // the kink of the Huber loss.
+      ceres::NumericDiffOptions nd;
+      nd.ridders_relative_initial_step_size = 1e-5;
+      for (std::size_t k = 0; k < blocks.size(); ++k) {
+        const std::vector<const ceres::Manifold*>* no_manifolds = nullptr;
+        ceres::GradientChecker checker(&blocks.block(k), no_manifolds, nd);
+        ceres::GradientChecker::ProbeResults results;
+        EXPECT_TRUE(checker.Probe(params, 1e-6, &results))
+            << MetricName(metric) << " loss " << static_cast<int>(loss) << " block " << k << ": " << results.error_log;
+      }
+    }
+}
+
+TEST(Fit, RankDeficientProblemIsReportedInPlainWords) {
+  const Model m = Model::Parse("lambert+lambert");
+  const std::vector<double> p = ParseParams(m.Info(), "lambert.albedo=0.2,lambert#2.albedo=0.3");
+  const Dataset d = Synthesise(m, p, 100, 9);
+  const Result r = Fit(m, d, Options{});
+  EXPECT_FALSE(r.covariance_ok);
+  EXPECT_NE(r.covariance_message.find("cannot tell apart lambert.albedo.r, lambert#2.albedo.r"), std::string::npos)
+      << r.covariance_message;
+  // The sum is still fitted.
+  EXPECT_NEAR(r.params[0] + r.params[3], 0.5, 1e-9);
+  EXPECT_TRUE(std::isnan(r.stddev[0]));
+}
+
+TEST(Fit, RobustLossResistsOutliers) {
+  const Model m = Model::Parse("lambert+ggx");
+  const std::vector<double> truth = ParseParams(m.Info(), "lambert.albedo=0.3:0.2:0.1,ggx.alpha=0.15,ggx.f0=0.9:0.7:0.5");
+  Dataset d = Synthesise(m, truth, 400, 21, 1e-12, 0.002);
+  d.has_sigma = false;
+  for (std::size_t k = 0; k < d.samples.size(); k += 20) d.samples[k].f += 0.5;  // 5 % gross outliers
+  Options plain;
+  plain.initial = truth;
+  Options robust = plain;
+  robust.loss = Loss::kCauchy;
+  const Result a = Fit(m, d, plain), b = Fit(m, d, robust);
+  EXPECT_GT(std::abs(a.params[0] - truth[0]), 0.05);
+  EXPECT_LT(std::abs(b.params[0] - truth[0]), 0.005);
+  EXPECT_LT(std::abs(b.params[3] - truth[3]) / truth[3], 0.02);
+}
+
+TEST(Fit, MerlFileFitsBackTheMaterialThatWroteIt) {
+  const Model m = Model::Parse("lambert+ggx");
+  const std::vector<double> truth = ParseParams(m.Info(), "lambert.albedo=0.25:0.2:0.15,ggx.alpha=0.08,ggx.f0=0.6:0.5:0.4");
+  const auto b = m.Make<double>();
+  const MerlTable table = MerlTable::FromFunction(
+      [&](const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) { return b->Eval(truth.data(), wi, wo); });
+  const fs::path path = fs::temp_directory_path() / ("brdfkit_fit_merl_" + std::to_string(::getpid()) + ".binary");
+  table.Write(path.string());
+  Dataset d = LoadDataset(path.string());
+  fs::remove(path);
+  EXPECT_GT(d.missing, 0u);  // bin centres below the horizon
+  EXPECT_EQ(d.samples.size() + d.missing, MerlTable::kCells);
+  // Every 37th sample keeps the test fast; the reader path is the point here.
+  Dataset sub;
+  for (std::size_t k = 0; k < d.samples.size(); k += 37) sub.samples.push_back(d.samples[k]);
+  const Result r = Fit(m, sub, Options{});
+  ExpectRecovered(r, truth, 1e-6);
+}
+
+// A narrow lobe seen through a 2-degree detector: the plain fit widens the
+// lobe, the fit through the instrument's forward model does not.
+TEST(Fit, InstrumentAwareFitRemovesApertureBias) {
+  synth::Instrument inst = synth::DefaultInstrument();
+  inst.detector.angular_radius = 2.0 * kPi / 180.0;
+  const int order = 3;
+  const synth::ApertureQuadrature q = synth::MakeApertureQuadrature(inst, order);
+  const Model m = Model::Parse("lambert+ggx");
+  const std::vector<double> truth = ParseParams(m.Info(), "lambert.albedo=0.2,ggx.alpha=0.05,ggx.f0=0.5");
+  const auto b = m.Make<double>();
+  Dataset d;
+  for (const auto& [wi, wo] : Directions(300, 77, 0.08))
+    d.samples.push_back({wi, wo, synth::MeasuredBrdf(*b, truth.data(), wi, wo, q), Eigen::Array3d::Zero()});
+  Options plain;
+  plain.initial = truth;
+  const Result biased = Fit(m, d, plain);
+  const double bias = biased.params[3] / truth[3] - 1;
+  EXPECT_GT(bias, 0.05) << "the aperture should widen the fitted lobe";
+  Options aware = plain;
+  aware.instrument = &inst;
+  aware.aperture_order = order;
+  aware.initial = biased.params;  // start from the biased answer
+  const Result r = Fit(m, d, aware);
+  ExpectRecovered(r, truth, 1e-6);
+}
+
+TEST(Fit, LoadDatasetReadsCsvWithMissingSamples) {
+  const fs::path path = fs::temp_directory_path() / ("brdfkit_fit_csv_" + std::to_string(::getpid()) + ".csv");
+  {
+    std::ofstream f(path);
+    f << "theta_i,phi_i,theta_o,phi_o,f\n0.5,0,0.5,3.14159,0.3\n0.5,0,,3.14159,0.3\n0.2,1,0.3,2,nan\n";
+  }
+  const Dataset d = LoadDataset(path.string());
+  fs::remove(path);
+  ASSERT_EQ(d.samples.size(), 1u);
+  EXPECT_EQ(d.missing, 2u);
+  EXPECT_NEAR(d.samples[0].wi.z(), std::cos(0.5), 1e-15);
+  EXPECT_NEAR(d.samples[0].wo.x(), -std::sin(0.5), 1e-5);
+}
+
+TEST(Fit, CliFitsWritesJsonAndReusesTheFit) {
+  const Model m = Model::Parse("lambert+ggx");
+  const std::vector<double> truth = ParseParams(m.Info(), "lambert.albedo=0.3:0.2:0.1,ggx.alpha=0.15,ggx.f0=0.9:0.7:0.5");
+  const Dataset d = Synthesise(m, truth, 300, 4);
+  synth::BrdfTable t;
+  for (const Sample& s : d.samples)
+    t.rows.push_back({std::acos(s.wi.z()), std::atan2(s.wi.y(), s.wi.x()), std::acos(s.wo.z()),
+                      std::atan2(s.wo.y(), s.wo.x()), s.f, Eigen::Array3d::Zero()});
+  const fs::path dir = fs::temp_directory_path() / ("brdfkit_fit_cli_" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  const std::string csv = (dir / "t.csv").string(), out = (dir / "fit.json").string(),
+                    trace = (dir / "trace.csv").string(), svg = (dir / "trace.svg").string();
+  synth::WriteTableCsv(csv, t);
+  const std::string exe = BRDFKIT_EXE;
+  const std::string cmd = exe + " fit --data " + csv + " --model lambert+ggx --metric log --out " + out +
+                          " --trace " + trace + " --trace-plot " + svg + " > " + (dir / "stdout").string();
+  ASSERT_EQ(std::system(cmd.c_str()), 0);
+  std::ifstream in(out);
+  const nlohmann::json j = nlohmann::json::parse(in);
+  EXPECT_EQ(j["model"], "lambert+ggx");
+  EXPECT_NEAR(j["params"]["ggx.alpha"].get<double>(), 0.15, 1e-6);
+  EXPECT_NEAR(j["params"]["lambert.albedo"][2].get<double>(), 0.1, 1e-7);
+  EXPECT_TRUE(j["converged"].get<bool>());
+  EXPECT_FALSE(j["trace"].empty());
+  EXPECT_TRUE(fs::file_size(trace) > 20 && fs::file_size(svg) > 100);
+  // The saved fit is a model anywhere: eval agrees with the truth.
+  const std::string eval = exe + " eval --model fit:" + out + " --wi-deg 30,0 --wo-deg 30,180 --json > " +
+                           (dir / "eval.json").string();
+  ASSERT_EQ(std::system(eval.c_str()), 0);
+  std::ifstream ein(dir / "eval.json");
+  const nlohmann::json e = nlohmann::json::parse(ein);
+  const auto b = m.Make<double>();
+  const Rgb<double> f =
+      b->Eval(truth.data(), Spherical(kPi / 6, 0), Spherical(kPi / 6, kPi));
+  EXPECT_NEAR(e["f"][0].get<double>(), f[0], 1e-6 * f[0]);
+  // Bad input: a clear message naming the file, exit 2, no output written.
+  const std::string bad = exe + " fit --data " + (dir / "absent.csv").string() + " --model ggx --out " +
+                          (dir / "bad.json").string() + " 2> " + (dir / "err").string();
+  const int rc = std::system(bad.c_str());
+  EXPECT_EQ(WEXITSTATUS(rc), 2);
+  std::ifstream err(dir / "err");
+  const std::string msg((std::istreambuf_iterator<char>(err)), std::istreambuf_iterator<char>());
+  EXPECT_NE(msg.find("absent.csv"), std::string::npos) << msg;
+  EXPECT_FALSE(fs::exists(dir / "bad.json"));
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace brdfkit::fit
