@@ -312,6 +312,9 @@ Instrument ParseInstrument(const json& j, const std::string& file, const std::st
     if (m.AnyNoise() && inst.detector.angular_radius == 0)
       r.FailAt("detector.angular_radius_deg",
                "a point detector (radius 0) collects no photons; sensor noise needs a finite aperture");
+    if (m.AnyNoise() && !((inst.detector.responsivity * inst.source.RadianceScale()).minCoeff() > 0))
+      r.FailAt("detector.responsivity",
+               "sensor noise needs a positive responsivity and source output in every channel");
   }
   top.Finish();
   return inst;
