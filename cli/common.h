@@ -45,5 +45,6 @@ void RegisterModels(CLI::App& app);
 void RegisterEval(CLI::App& app);
 void RegisterRun(CLI::App& app);
 void RegisterFit(CLI::App& app);  LoadedModel LoadFitModel(const std::string& path);  // cmd_fit.cpp
+void RegisterSynth(CLI::App& app);
 
 }  // namespace brdfkit::cli

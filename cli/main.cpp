@@ -12,6 +12,7 @@ int main(int argc, char** argv) {
   brdfkit::cli::RegisterEval(app);
   brdfkit::cli::RegisterRun(app);
   brdfkit::cli::RegisterFit(app);
+  brdfkit::cli::RegisterSynth(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
