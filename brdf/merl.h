@@ -393,10 +393,10 @@ class MerlTable {
 // Model [merl]: a measured isotropic BRDF in the MERL binary format.
 //
 // No numeric parameters. Settings:
-// | setting | values                  | meaning                                       |
-// |---------|-------------------------|-----------------------------------------------|
-// | path    | FILE                    | the .binary file (also "merl:FILE")           |
-// | interp  | nearest (default), trilinear | lookup: as the original reader, or trilinear |
+// | setting | values                       | meaning                                           |
+// |---------|------------------------------|---------------------------------------------------|
+// | path    | FILE                         | the .binary file (also written "merl:FILE")       |
+// | interp  | nearest (default), trilinear | as the original reader, or trilinear in the table |
 //
 // Eval returns the table's value as a constant of T (zero derivative with
 // respect to any parameter); missing samples evaluate to 0. Reciprocal:
