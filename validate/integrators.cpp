@@ -104,22 +104,22 @@ struct Frame {
   Vector3d ToLocal(const Vector3d& v) const { return Vector3d(v.dot(s), v.dot(t), v.dot(n)); }
 };
 
-// GGX-shaped lobe of width `width` around `axis` (heavy tails, so it covers
-// both GGX and lighter-tailed peaks): density D_GGX(local) cos(local theta).
-Vector3d SampleLobe(const Frame& f, double width, double u1, double u2) {
-  const double w2 = width * width;
-  const double cos_t = std::sqrt((1.0 - u1) / (1.0 - u1 + w2 * u1));
-  const double sin_t = std::sqrt(std::max(0.0, 1.0 - cos_t * cos_t));
+// GGX-shaped lobe around the frame's axis with widths (wx, wy) along its
+// tangents (heavy tails, so it covers both GGX and lighter-tailed peaks):
+// density D_GGX(local; wx, wy) cos(local theta), sampled through unit-width
+// slopes (tan^2 = u1 / (1 - u1)) stretched by the widths.
+Vector3d SampleLobe(const Frame& f, double wx, double wy, double u1, double u2) {
+  const double tan_t = std::sqrt(u1 / (1.0 - u1));
   const double phi = 2.0 * kPi * u2;
-  return f.ToWorld(Vector3d(sin_t * std::cos(phi), sin_t * std::sin(phi), cos_t));
+  const Vector3d local = Vector3d(wx * tan_t * std::cos(phi), wy * tan_t * std::sin(phi), 1.0).normalized();
+  return f.ToWorld(local);
 }
 
-double LobePdf(const Frame& f, double width, const Vector3d& d) {
+double LobePdf(const Frame& f, double wx, double wy, const Vector3d& d) {
   const Vector3d l = f.ToLocal(d);
   if (l.z() <= 0) return 0;  // the lobe covers the hemisphere around its axis only
-  const double w2 = width * width;
-  const double e = (l.x() * l.x() + l.y() * l.y()) / w2 + l.z() * l.z();
-  return l.z() / (kPi * w2 * e * e);
+  const double e = l.x() * l.x() / (wx * wx) + l.y() * l.y() / (wy * wy) + l.z() * l.z();
+  return l.z() / (kPi * wx * wy * e * e);
 }
 
 // Sampler used by the importance methods when the problem brings none:
@@ -135,17 +135,17 @@ std::function<DirSample(double, double)> DefaultSampler(const Problem& pb) {
     };
   }
   const Frame frame(pb.peak);
-  const double width = std::min(pb.width, 1e3);
-  return [frame, width](double u1, double u2) {
+  const double wx = std::min(pb.width, 1e3), wy = std::min(pb.width_y > 0 ? pb.width_y : pb.width, 1e3);
+  return [frame, wx, wy](double u1, double u2) {
     DirSample s;
     if (u1 < 0.5) {
       s.wi = SampleCosineHemisphere<double>(2.0 * u1, u2);
     } else {
       // 2 u1 - 1 stays below 1 for u1 < 1.
-      s.wi = SampleLobe(frame, width, 2.0 * u1 - 1.0, u2);
+      s.wi = SampleLobe(frame, wx, wy, 2.0 * u1 - 1.0, u2);
     }
     if (!(s.wi.z() > 0)) return s;
-    s.pdf = 0.5 * s.wi.z() * kInvPi + 0.5 * LobePdf(frame, width, s.wi);
+    s.pdf = 0.5 * s.wi.z() * kInvPi + 0.5 * LobePdf(frame, wx, wy, s.wi);
     s.valid = s.pdf > 0;
     return s;
   };
