@@ -46,5 +46,6 @@ void RegisterEval(CLI::App& app);
 void RegisterRun(CLI::App& app);
 void RegisterFit(CLI::App& app);  LoadedModel LoadFitModel(const std::string& path);  // cmd_fit.cpp
 void RegisterSynth(CLI::App& app);
+void RegisterConvergence(CLI::App& app);  // cmd_convergence.cpp
 
 }  // namespace brdfkit::cli

@@ -13,6 +13,7 @@ int main(int argc, char** argv) {
   brdfkit::cli::RegisterRun(app);
   brdfkit::cli::RegisterFit(app);
   brdfkit::cli::RegisterSynth(app);
+  brdfkit::cli::RegisterConvergence(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
