@@ -1,0 +1,761 @@
+#include "validate/albedo.h"
+
+#include <tbb/parallel_for.h>
+
+#include <ImfAttribute.h>
+#include <ImfChannelList.h>
+#include <ImfFloatVectorAttribute.h>
+#include <ImfFrameBuffer.h>
+#include <ImfHeader.h>
+#include <ImfMultiPartOutputFile.h>
+#include <ImfOutputPart.h>
+#include <ImfPartType.h>
+#include <ImfStdIO.h>
+#include <ImfStringAttribute.h>
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <memory>
+#include <sstream>
+
+#include "brdf/atomic_file.h"
+#include "brdf/params.h"
+#include "validate/quadrature.h"
+
+namespace brdfkit::validate {
+
+namespace {
+
+// Gauss-Kronrod 7/15 nodes and weights on [-1, 1] (Piessens et al. 1983,
+// QUADPACK qk15). Kronrod nodes xk[1], xk[3], xk[5], xk[7] are the Gauss nodes.
+constexpr std::array<double, 8> kXk = {0.991455371120812639206854697526329, 0.949107912342758524526189684047851,
+                                       0.864864423359769072789712788640926, 0.741531185599394439863864773280788,
+                                       0.586087235467691130294144845693013, 0.405845151377397166906606412076961,
+                                       0.207784955007898467600689403773245, 0.0};
+constexpr std::array<double, 8> kWk = {0.022935322010529224963732008058970, 0.063092092629978553290700663189204,
+                                       0.104790010322250183839876322541518, 0.140653259715525918745189590510238,
+                                       0.169004726639267902826583426598550, 0.190350578064785409913256402421014,
+                                       0.204432940075298892414161999234649, 0.209482141084727828012999174891714};
+constexpr std::array<double, 4> kWg = {0.129484966168869693270611432679082, 0.279705391489276667901467771423780,
+                                       0.381830050505118944950369775488975, 0.417959183673469387755102040816327};
+
+struct Interval {
+  double a, b;
+  Eigen::Array3d value;
+  double error;
+};
+
+Interval Kronrod15(const std::function<Eigen::Array3d(double)>& f, double a, double b) {
+  const double c = 0.5 * (a + b), h = 0.5 * (b - a);
+  std::array<Eigen::Array3d, 15> fv;
+  fv[7] = f(c);
+  for (int j = 0; j < 7; ++j) {
+    fv[j] = f(c - h * kXk[j]);
+    fv[14 - j] = f(c + h * kXk[j]);
+  }
+  Eigen::Array3d k = kWk[7] * fv[7], g = kWg[3] * fv[7], kabs = kWk[7] * fv[7].abs();
+  for (int j = 0; j < 7; ++j) {
+    k += kWk[j] * (fv[j] + fv[14 - j]);
+    kabs += kWk[j] * (fv[j].abs() + fv[14 - j].abs());
+    if (j % 2 == 1) g += kWg[j / 2] * (fv[j] + fv[14 - j]);
+  }
+  const Eigen::Array3d mean = 0.5 * k;
+  Eigen::Array3d asc = kWk[7] * (fv[7] - mean).abs();
+  for (int j = 0; j < 7; ++j) asc += kWk[j] * ((fv[j] - mean).abs() + (fv[14 - j] - mean).abs());
+  // QUADPACK's error estimate: |K15 - G7| scaled by (200 |K - G| / resasc)^1.5,
+  // and never below the rounding level of the absolute integral.
+  double err = 0;
+  for (int ch = 0; ch < 3; ++ch) {
+    double e = std::abs((k[ch] - g[ch]) * h);
+    const double resasc = asc[ch] * h;
+    if (resasc > 0 && e > 0) e = resasc * std::min(1.0, std::pow(200.0 * e / resasc, 1.5));
+    const double resabs = kabs[ch] * std::abs(h);
+    e = std::max(e, 50.0 * std::numeric_limits<double>::epsilon() * resabs);
+    err = std::max(err, e);
+  }
+  return {a, b, k * h, err};
+}
+
+constexpr double kHalfPi = 0.5 * kPi;
+
+// Breakpoints width * 4^k (k >= -1) below `limit`.
+void GeometricBreaks(double width, double start, double limit, std::vector<double>& out) {
+  for (double x = width / 4; x < limit; x *= 4)
+    if (x > start) out.push_back(x);
+}
+
+}  // namespace
+
+Eigen::Array3d AdaptiveGaussKronrod(const std::function<Eigen::Array3d(double)>& f, double a, double b,
+                                    std::vector<double> breakpoints, double abs_tolerance, int max_subdivisions,
+                                    double* error, std::int64_t* evals) {
+  std::vector<double> pts{a};
+  std::sort(breakpoints.begin(), breakpoints.end());
+  for (double x : breakpoints)
+    if (x > pts.back() && x < b) pts.push_back(x);
+  pts.push_back(b);
+  std::vector<Interval> heap;
+  const auto by_error = [](const Interval& l, const Interval& r) { return l.error < r.error; };
+  for (std::size_t i = 0; i + 1 < pts.size(); ++i) {
+    if (!(pts[i + 1] > pts[i])) continue;
+    heap.push_back(Kronrod15(f, pts[i], pts[i + 1]));
+  }
+  std::int64_t n = 15 * static_cast<std::int64_t>(heap.size());
+  std::make_heap(heap.begin(), heap.end(), by_error);
+  double total_error = 0;
+  for (const Interval& iv : heap) total_error += iv.error;
+  for (int it = 0; it < max_subdivisions && total_error > abs_tolerance && !heap.empty(); ++it) {
+    std::pop_heap(heap.begin(), heap.end(), by_error);
+    const Interval worst = heap.back();
+    heap.pop_back();
+    const double mid = 0.5 * (worst.a + worst.b);
+    // An interval that cannot be split in double precision is final.
+    if (!(mid > worst.a && mid < worst.b)) {
+      heap.push_back(worst);
+      std::push_heap(heap.begin(), heap.end(), by_error);
+      break;
+    }
+    const Interval l = Kronrod15(f, worst.a, mid), r = Kronrod15(f, mid, worst.b);
+    n += 30;
+    total_error += l.error + r.error - worst.error;
+    heap.push_back(l);
+    std::push_heap(heap.begin(), heap.end(), by_error);
+    heap.push_back(r);
+    std::push_heap(heap.begin(), heap.end(), by_error);
+  }
+  Eigen::Array3d sum = Eigen::Array3d::Zero();
+  double err = 0;
+  for (const Interval& iv : heap) {
+    sum += iv.value;
+    err += iv.error;
+  }
+  if (error) *error = err;
+  if (evals) *evals += n;
+  return sum;
+}
+
+LobeShape EstimateLobeShape(const Bxdf<double>& bxdf, const double* p) {
+  LobeShape shape;
+  // Angle (radians) where g falls to half of g(0) along the two axes, by
+  // bisection on [0, pi/2); pi/2 when it never does.
+  const auto half_angle = [](const std::function<double(double)>& g) {
+    const double g0 = g(0);
+    if (!(g0 > 0) || !std::isfinite(g0)) return 1.0;
+    if (g(1.4) >= 0.5 * g0) return 1.0;
+    double lo = 0, hi = 1.4;
+    for (int i = 0; i < 60; ++i) {
+      const double mid = 0.5 * (lo + hi);
+      (g(mid) >= 0.5 * g0 ? lo : hi) = mid;
+    }
+    return std::max(hi, 1e-12);
+  };
+  double width = 1.0;
+  for (int axis = 0; axis < 2; ++axis) {
+    const auto dir = [axis](double t) {
+      return axis == 0 ? Eigen::Vector3d(std::sin(t), 0, std::cos(t)) : Eigen::Vector3d(0, std::sin(t), std::cos(t));
+    };
+    double w;
+    if (const MicrofacetView<double>* mf = bxdf.Microfacet()) {
+      w = half_angle([&](double t) { return mf->D(p, dir(t)); });
+    } else {
+      // f_r at normal viewing against the half-vector angle t (wi at 2t).
+      const Eigen::Vector3d wo(0, 0, 1);
+      w = half_angle([&](double t) {
+        if (2 * t >= kHalfPi) return 0.0;
+        return bxdf.Eval(p, dir(2 * t), wo).mean() * std::cos(2 * t);
+      });
+    }
+    width = std::min(width, w);
+  }
+  shape.width = width;
+  // Mirror symmetry about the xz plane, tested at fixed pairs spread over the
+  // hemisphere with wo in the plane.
+  shape.mirror_symmetric = true;
+  for (int k = 0; k < 24 && shape.mirror_symmetric; ++k) {
+    const double to = 0.07 + 1.45 * ((k * 7) % 24) / 24.0, ti = 0.05 + 1.5 * ((k * 11) % 24) / 24.0;
+    const double phi = 0.3 + 2.6 * ((k * 5) % 24) / 24.0;
+    const Eigen::Vector3d wo(std::sin(to), 0, std::cos(to));
+    const Eigen::Vector3d wi(std::sin(ti) * std::cos(phi), std::sin(ti) * std::sin(phi), std::cos(ti));
+    const Eigen::Vector3d wi_m(wi.x(), -wi.y(), wi.z());
+    const Eigen::Array3d a = bxdf.Eval(p, wi, wo), b = bxdf.Eval(p, wi_m, wo);
+    const double scale = std::max(a.abs().maxCoeff(), b.abs().maxCoeff());
+    if ((a - b).abs().maxCoeff() > 1e-12 * scale) shape.mirror_symmetric = false;
+  }
+  return shape;
+}
+
+AlbedoValue HalfVectorAlbedo(const Bxdf<double>& bxdf, const double* p, const Eigen::Vector3d& wo,
+                             const LobeShape& shape, const AlbedoQuadratureOptions& o) {
+  AlbedoValue out;
+  const double mu_o = wo.z();
+  if (!(mu_o > 0)) return out;
+  const double sin_o = std::sqrt(std::max(0.0, wo.x() * wo.x() + wo.y() * wo.y()));
+  const double phi_o = sin_o > 0 ? std::atan2(wo.y(), wo.x()) : 0.0;
+  const bool half = shape.mirror_symmetric && wo.y() == 0;
+  const double w = std::max(shape.width, 1e-12);
+
+  // theta_max(phi): wi.z = mu_o cos(2 theta) + sin_o cos(phi) sin(2 theta) > 0.
+  const auto theta_max = [&](double phi) { return 0.5 * (kHalfPi + std::atan2(sin_o * std::cos(phi), mu_o)); };
+
+  std::int64_t evals = 0;
+  double inner_error_sum = 0;
+  const double phi_end = half ? kPi : 2 * kPi;
+  const double inner_tol = o.abs_tolerance / (2 * kPi);
+  const auto inner = [&](double phi) -> Eigen::Array3d {
+    const double tmax = theta_max(phi);
+    const double cp = std::cos(phi);
+    const double ca = std::cos(phi + phi_o), sa = std::sin(phi + phi_o);
+    const auto g = [&](double t) -> Eigen::Array3d {
+      const double st = std::sin(t), ct = std::cos(t);
+      const Eigen::Vector3d wm(st * ca, st * sa, ct);
+      const double o_dot_m = sin_o * st * cp + mu_o * ct;
+      // wi.z from the double-angle form: no cancellation at grazing.
+      const double wi_z = mu_o * std::cos(2 * t) + sin_o * cp * std::sin(2 * t);
+      if (!(wi_z > 0) || !(o_dot_m > 0)) return Eigen::Array3d::Zero();
+      Eigen::Vector3d wi = 2 * o_dot_m * wm - wo;
+      wi.z() = wi_z;
+      return bxdf.Eval(p, wi, wo) * (wi_z * 4 * o_dot_m * st);
+    };
+    std::vector<double> breaks;
+    GeometricBreaks(w, 0, tmax, breaks);
+    double err = 0;
+    const int subdivisions = evals > o.max_evals ? 0 : o.max_subdivisions;
+    const Eigen::Array3d v = AdaptiveGaussKronrod(g, 0, tmax, breaks, inner_tol, subdivisions, &err, &evals);
+    inner_error_sum = std::max(inner_error_sum, err);
+    return v;
+  };
+  // Where the horizon cuts a narrow lobe: phi = pi/2 + asin(s) with the cut
+  // at theta ~ mu_o / (2 s), s from mu_o / w upwards.
+  std::vector<double> breaks{kHalfPi};
+  if (!half) breaks.push_back(1.5 * kPi);
+  for (double s = mu_o / w / 16; s < 1; s *= 4) {
+    breaks.push_back(kHalfPi + std::asin(s));
+    if (!half) breaks.push_back(1.5 * kPi - std::asin(s));
+  }
+  double outer_err = 0;
+  Eigen::Array3d v = AdaptiveGaussKronrod(inner, 0, phi_end, breaks, o.abs_tolerance, o.max_subdivisions,
+                                          &outer_err, &evals);
+  const double factor = half ? 2.0 : 1.0;
+  out.value = v * factor;
+  out.error = Eigen::Array3d::Constant(factor * (outer_err + phi_end * inner_error_sum));
+  out.evals = evals;
+  return out;
+}
+
+namespace {
+// Below 1e-15 the direction wo itself (sin_o = 1 exactly) carries no more information.
+double GrazingMu(const LobeShape& shape) { return std::max(1e-15, std::min(kGrazingMu, 1e-9 * shape.width)); }
+}  // namespace
+
+AlbedoValue AlbedoAtMu(const Bxdf<double>& bxdf, const double* p, double mu, const LobeShape& shape,
+                       const AlbedoQuadratureOptions& o) {
+  mu = std::max(mu, GrazingMu(shape));
+  mu = std::min(mu, 1.0);
+  const Eigen::Vector3d wo(std::sqrt(std::max(0.0, (1 - mu) * (1 + mu))), 0, mu);
+  return HalfVectorAlbedo(bxdf, p, wo, shape, o);
+}
+
+AlbedoValue AverageAlbedo(const Bxdf<double>& bxdf, const double* p, const LobeShape& shape,
+                          const AlbedoQuadratureOptions& o) {
+  AlbedoValue out;
+  double inner_err = 0;
+  AlbedoQuadratureOptions io = o;
+  // An error in E at mu enters E_avg with weight 2 mu dmu (total 1).
+  io.abs_tolerance = 0.5 * o.abs_tolerance;
+  io.max_evals = std::min<std::int64_t>(o.max_evals, 200000);
+  // In s = ln(mu) the integrand 2 mu^2 E(e^s) is smooth: the mu ln(mu)
+  // terms of E near grazing and the dip of width ~w at mu ~ w both become
+  // features of unit scale. Below mu_min = 1e-4 w, E is at its grazing limit
+  // and int_0^mu_min 2 mu E dmu = mu_min^2 E(mu_min).
+  const double mu_min = std::max(1e-4 * std::min(shape.width, 1.0), 1e-12);
+  const auto g = [&](double s) -> Eigen::Array3d {
+    const double mu = std::exp(s);
+    // The error of E at mu enters with weight 2 mu^2 ds over |s0| < 30:
+    // 0.01 tol / mu^2 keeps the sum below 0.6 tol and makes grazing cheap.
+    AlbedoQuadratureOptions is = io;
+    is.abs_tolerance = std::min(1e-3, std::max(io.abs_tolerance, 0.01 * o.abs_tolerance / (mu * mu)));
+    const AlbedoValue e = AlbedoAtMu(bxdf, p, mu, shape, is);
+    out.evals += e.evals;
+    inner_err = std::max(inner_err, 2 * mu * mu * e.error.maxCoeff());
+    return 2 * mu * mu * e.value;
+  };
+  const double s0 = std::log(mu_min), sw = std::log(std::min(shape.width, 1.0));
+  std::vector<double> breaks{sw - 2, sw + 2};
+  double err = 0;
+  std::int64_t n = 0;
+  out.value = AdaptiveGaussKronrod(g, s0, 0, breaks, 0.5 * o.abs_tolerance, o.max_subdivisions, &err, &n);
+  const AlbedoValue e_min = AlbedoAtMu(bxdf, p, mu_min, shape, io);
+  out.value += mu_min * mu_min * e_min.value;
+  out.evals += e_min.evals;
+  out.error = Eigen::Array3d::Constant(err + std::abs(s0) * inner_err);
+  return out;
+}
+
+// --- tables ----------------------------------------------------------------
+
+std::vector<AxisSpec> ParseAxes(const std::string& text) {
+  std::vector<AxisSpec> out;
+  std::stringstream ss(text);
+  std::string item;
+  while (std::getline(ss, item, ',')) {
+    std::vector<std::string> parts;
+    std::stringstream is(item);
+    std::string part;
+    while (std::getline(is, part, ':')) parts.push_back(part);
+    if (parts.size() != 2 && parts.size() != 4)
+      throw ModelError("axis '" + item + "': expected name:count or name:count:lower:upper");
+    AxisSpec a;
+    a.name = parts[0];
+    double count;
+    if (a.name.empty()) throw ModelError("axis '" + item + "': empty name");
+    if (!ParseDouble(parts[1], count) || count != std::floor(count) || count < 1 || count > 4096)
+      throw ModelError("axis '" + item + "': count '" + parts[1] + "' is not an integer in [1, 4096]");
+    a.count = static_cast<int>(count);
+    if (parts.size() == 4) {
+      if (!ParseDouble(parts[2], a.lower) || !ParseDouble(parts[3], a.upper) || !std::isfinite(a.lower) ||
+          !std::isfinite(a.upper))
+        throw ModelError("axis '" + item + "': range '" + parts[2] + ":" + parts[3] + "' is not two numbers");
+      if (a.lower > a.upper) throw ModelError("axis '" + item + "': lower bound above upper bound");
+    }
+    out.push_back(a);
+  }
+  if (out.empty()) throw ModelError("no axes given (expected e.g. mu:32,alpha:32)");
+  return out;
+}
+
+namespace {
+
+// Nodes of `count` points on [lo, hi] in coordinate c = sqrt(x) or x.
+void MakeNodes(Axis& axis, int count, double lo, double hi, NodeRule rule) {
+  const auto to_c = [&](double x) { return axis.sqrt_spacing ? std::sqrt(x) : x; };
+  const auto from_c = [&](double c) { return axis.sqrt_spacing ? c * c : c; };
+  const double c0 = to_c(lo), c1 = to_c(hi);
+  axis.nodes.clear();
+  axis.weights.clear();
+  if (count == 1 || lo == hi) {
+    // A single node sits at the middle of the range (a point range: there).
+    axis.nodes = {lo == hi ? lo : from_c(0.5 * (c0 + c1))};
+    if (rule == NodeRule::kGauss) axis.weights = {hi - lo};
+    return;
+  }
+  if (rule == NodeRule::kUniform) {
+    for (int i = 0; i < count; ++i) {
+      const double c = c0 + (c1 - c0) * i / (count - 1);
+      axis.nodes.push_back(i == 0 ? lo : i == count - 1 ? hi : from_c(c));
+    }
+    return;
+  }
+  const GaussLegendre gl(count);
+  for (int i = 0; i < count; ++i) {
+    const double c = c0 + (c1 - c0) * gl.node01(i);
+    axis.nodes.push_back(from_c(c));
+    // Weight for int dx: dx = (dx/dc) dc, dx/dc = 2c under sqrt spacing.
+    axis.weights.push_back((c1 - c0) * gl.weight01(i) * (axis.sqrt_spacing ? 2 * c : 1.0));
+  }
+}
+
+void SetParam(const ModelInfo& info, const Axis& axis, double value, std::vector<double>& packed) {
+  const std::size_t off = info.Offset(axis.param_index);
+  const int n = info.params[axis.param_index].colour ? 3 : 1;
+  for (int c = 0; c < n; ++c) packed[off + c] = value;
+}
+
+}  // namespace
+
+AlbedoTable BuildAlbedoTable(const Model& model, const std::vector<double>& base_params,
+                             const AlbedoTableRequest& req) {
+  const auto t_start = std::chrono::steady_clock::now();
+  const ModelInfo& info = model.Info();
+  ValidateParams(info, base_params);
+  if (req.axes.size() < 2 || req.axes.size() > 3 || req.axes[0].name != "mu")
+    throw ModelError("axes: expected mu:N followed by one or two model parameters (e.g. mu:32,alpha:32)");
+  if (req.channel < 0 || req.channel > 2) throw ModelError("channel must be 0, 1 or 2");
+  AlbedoTable t;
+  t.model = model.Spec();
+  t.base_params = base_params;
+  t.params_text = FormatParams(info, base_params);
+  t.mu.name = "mu";
+  {
+    const AxisSpec& a = req.axes[0];
+    double lo = 0, hi = 1;
+    if (a.lower != 0 || a.upper != 0) {
+      lo = a.lower;
+      hi = a.upper;
+    }
+    if (lo < 0 || hi > 1) throw ModelError("axis mu: range must lie in [0, 1]");
+    MakeNodes(t.mu, a.count, lo, hi, req.rule);
+  }
+  for (std::size_t k = 1; k < req.axes.size(); ++k) {
+    const AxisSpec& a = req.axes[k];
+    Axis axis;
+    axis.name = a.name;
+    std::size_t index = info.params.size();
+    for (std::size_t i = 0; i < info.params.size(); ++i)
+      if (info.params[i].name == a.name) index = i;
+    if (index == info.params.size()) {
+      std::string known;
+      for (const auto& p : info.params) known += (known.empty() ? "" : ", ") + p.name;
+      throw ModelError("axis '" + a.name + "' is not a parameter of model '" + info.name + "' (parameters: " +
+                       (known.empty() ? "none" : known) + ")");
+    }
+    for (const Axis& prev : t.params)
+      if (prev.name == a.name) throw ModelError("axis '" + a.name + "' is given twice");
+    const ParamInfo& pi = info.params[index];
+    axis.param_index = index;
+    axis.sqrt_spacing = pi.scale == ParamInfo::Scale::kLog;
+    double lo = pi.lower, hi = pi.upper;
+    if (a.lower != 0 || a.upper != 0) {
+      lo = a.lower;
+      hi = a.upper;
+    }
+    if (lo < pi.lower || hi > pi.upper)
+      throw ModelError("axis '" + a.name + "': range [" + FormatDouble(lo) + ", " + FormatDouble(hi) +
+                       "] is outside the parameter's range [" + FormatDouble(pi.lower) + ", " +
+                       FormatDouble(pi.upper) + "]");
+    MakeNodes(axis, a.count, lo, hi, req.rule);
+    if (a.name == "f0") t.f0_axis = static_cast<int>(t.params.size());
+    t.params.push_back(std::move(axis));
+  }
+
+  const std::size_t n_mu = t.n_mu(), n1 = t.n1(), n2 = t.n2();
+  const std::size_t n_points = n1 * n2;
+  t.E.assign(n_mu * n_points, 0.0);
+  t.E_error.assign(t.E.size(), 0.0);
+  t.E_avg.assign(n_points, 0.0);
+  t.E_avg_error.assign(n_points, 0.0);
+  const auto bxdf = model.Make<double>();
+  const int ch = req.channel;
+
+  // Parameter vectors and lobe shapes per point.
+  std::vector<std::vector<double>> point_params(n_points, base_params);
+  for (std::size_t i1 = 0; i1 < n1; ++i1)
+    for (std::size_t i2 = 0; i2 < n2; ++i2) {
+      auto& pp = point_params[i1 * n2 + i2];
+      SetParam(info, t.params[0], t.params[0].nodes[i1], pp);
+      if (t.params.size() > 1) SetParam(info, t.params[1], t.params[1].nodes[i2], pp);
+    }
+  // F = 1 points for the Fresnel compensation terms (f0 axis set to 1).
+  std::size_t n_other = 1;
+  std::vector<std::vector<double>> f1_params;
+  if (t.f0_axis >= 0) {
+    const int other = t.params.size() > 1 ? 1 - t.f0_axis : -1;
+    n_other = other >= 0 ? t.params[other].nodes.size() : 1;
+    f1_params.assign(n_other, base_params);
+    for (std::size_t j = 0; j < n_other; ++j) {
+      SetParam(info, t.params[t.f0_axis], 1.0, f1_params[j]);
+      if (other >= 0) SetParam(info, t.params[other], t.params[other].nodes[j], f1_params[j]);
+    }
+    t.E1.assign(n_mu * n_other, 0.0);
+    t.E1_avg.assign(n_other, 0.0);
+  }
+  std::vector<LobeShape> shapes(n_points), f1_shapes(f1_params.size());
+  for (std::size_t i = 0; i < n_points; ++i) shapes[i] = EstimateLobeShape(*bxdf, point_params[i].data());
+  for (std::size_t i = 0; i < f1_params.size(); ++i) f1_shapes[i] = EstimateLobeShape(*bxdf, f1_params[i].data());
+
+  // Tasks: averages first (each costs dozens of cells), then the cells.
+  std::vector<double> limit_err(n_points + f1_params.size(), 0.0);
+  std::vector<double> f1_err(t.E1.size() + t.E1_avg.size(), 0.0);
+  const std::size_t n_tasks = n_points + f1_params.size() + t.E.size() + t.E1.size();
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n_tasks, 1), [&](const tbb::blocked_range<std::size_t>& r) {
+    for (std::size_t task = r.begin(); task != r.end(); ++task) {
+      std::size_t k = task;
+      if (k < n_points) {
+        const AlbedoValue a = AverageAlbedo(*bxdf, point_params[k].data(), shapes[k], req.quadrature);
+        t.E_avg[k] = a.value[ch];
+        t.E_avg_error[k] = a.error[ch];
+        continue;
+      }
+      k -= n_points;
+      if (k < f1_params.size()) {
+        const AlbedoValue a = AverageAlbedo(*bxdf, f1_params[k].data(), f1_shapes[k], req.quadrature);
+        t.E1_avg[k] = a.value[ch];
+        f1_err[t.E1.size() + k] = a.error[ch];
+        continue;
+      }
+      k -= f1_params.size();
+      const bool f1 = k >= t.E.size();
+      if (f1) k -= t.E.size();
+      const std::size_t i_mu = k % n_mu, point = k / n_mu;
+      const double* pp = f1 ? f1_params[point].data() : point_params[point].data();
+      const LobeShape& shape = f1 ? f1_shapes[point] : shapes[point];
+      const AlbedoValue a = AlbedoAtMu(*bxdf, pp, t.mu.nodes[i_mu], shape, req.quadrature);
+      if (f1) {
+        t.E1[k] = a.value[ch];
+        f1_err[k] = a.error[ch];
+      } else {
+        t.E[k] = a.value[ch];
+        t.E_error[k] = a.error[ch];
+      }
+      if (t.mu.nodes[i_mu] == 0) {
+        // Distance from the limit: E at ten times the grazing cosine.
+        const double mu10 = 10 * GrazingMu(shape);
+        const AlbedoValue b = AlbedoAtMu(*bxdf, pp, mu10, shape, req.quadrature);
+        limit_err[(f1 ? n_points : 0) + point] = std::abs(b.value[ch] - a.value[ch]);
+      }
+    }
+  });
+
+  t.ms_norm.resize(n_points);
+  for (std::size_t i = 0; i < n_points; ++i)
+    t.ms_norm[i] = t.E_avg[i] < 1 ? 1.0 / (kPi * (1.0 - t.E_avg[i])) : std::numeric_limits<double>::infinity();
+  if (t.f0_axis >= 0) {
+    const Axis& fa = t.params[t.f0_axis];
+    // Schlick: 2 int_0^1 (f0 + (1 - f0)(1 - mu)^5) mu dmu = f0 + (1 - f0) / 21.
+    for (double f0 : fa.nodes) t.F_avg.push_back(f0 + (1 - f0) / 21.0);
+    t.F_ms.resize(n_points);
+    for (std::size_t i1 = 0; i1 < n1; ++i1)
+      for (std::size_t i2 = 0; i2 < n2; ++i2) {
+        const std::size_t i_f0 = t.f0_axis == 0 ? i1 : i2, i_other = t.f0_axis == 0 ? i2 : i1;
+        const double fav = t.F_avg[i_f0], e1 = t.E1_avg[t.params.size() > 1 ? i_other : 0];
+        t.F_ms[i1 * n2 + i2] = fav * fav * e1 / (1 - fav * (1 - e1));
+      }
+  }
+  for (double e : t.E_error) t.max_error = std::max(t.max_error, e);
+  for (double e : t.E_avg_error) t.max_error = std::max(t.max_error, e);
+  for (double e : f1_err) t.max_error = std::max(t.max_error, e);
+  for (double e : limit_err) t.limit_error = std::max(t.limit_error, e);
+  t.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
+  return t;
+}
+
+// --- writers ---------------------------------------------------------------
+
+namespace {
+
+std::string SiblingPath(const std::string& path, const std::string& suffix) {
+  const std::filesystem::path p(path);
+  std::filesystem::path out = p.parent_path() / (p.stem().string() + suffix + p.extension().string());
+  return out.string();
+}
+
+std::string Fmt(double v) { return FormatDouble(v); }
+
+std::string AxesText(const AlbedoTable& t) {
+  std::string s = "mu:" + std::to_string(t.n_mu());
+  for (const Axis& a : t.params) s += "," + a.name + ":" + std::to_string(a.nodes.size());
+  return s;
+}
+
+}  // namespace
+
+std::string AverageCsvPath(const std::string& path) { return SiblingPath(path, "_avg"); }
+
+void WriteAlbedoCsv(const AlbedoTable& t, const std::string& path) {
+  const std::size_t n1 = t.n1(), n2 = t.n2();
+  const bool two = t.params.size() > 1;
+  std::string pnames = t.params[0].name;
+  if (two) pnames.append(",").append(t.params[1].name);
+  std::ostringstream e, avg, ms;
+  e << "mu," << pnames << ",E\n";
+  avg << pnames << ",E_avg\n";
+  ms << pnames << ",E_avg,ms_norm" << (t.f0_axis >= 0 ? ",F_avg,E1_avg,F_ms" : "") << "\n";
+  const std::size_t n_other = t.f0_axis >= 0 ? t.E1_avg.size() : 0;
+  for (std::size_t i1 = 0; i1 < n1; ++i1)
+    for (std::size_t i2 = 0; i2 < n2; ++i2) {
+      std::string pv = Fmt(t.params[0].nodes[i1]);
+      if (two) pv.append(",").append(Fmt(t.params[1].nodes[i2]));
+      for (std::size_t m = 0; m < t.n_mu(); ++m) e << Fmt(t.mu.nodes[m]) << "," << pv << "," << Fmt(t.at(m, i1, i2)) << "\n";
+      const std::size_t k = i1 * n2 + i2;
+      avg << pv << "," << Fmt(t.E_avg[k]) << "\n";
+      ms << pv << "," << Fmt(t.E_avg[k]) << "," << Fmt(t.ms_norm[k]);
+      if (t.f0_axis >= 0) {
+        const std::size_t i_f0 = t.f0_axis == 0 ? i1 : i2, i_other = two ? (t.f0_axis == 0 ? i2 : i1) : 0;
+        ms << "," << Fmt(t.F_avg[i_f0]) << "," << Fmt(t.E1_avg[i_other]) << "," << Fmt(t.F_ms[k]);
+      }
+      ms << "\n";
+    }
+  std::ostringstream f1;
+  if (t.f0_axis >= 0) {
+    const Axis* other = two ? &t.params[1 - t.f0_axis] : nullptr;
+    f1 << "mu";
+    if (other) f1 << "," << other->name;
+    f1 << ",E\n";
+    for (std::size_t j = 0; j < n_other; ++j)
+      for (std::size_t m = 0; m < t.n_mu(); ++m) {
+        f1 << Fmt(t.mu.nodes[m]);
+        if (other) f1 << "," << Fmt(other->nodes[j]);
+        f1 << "," << Fmt(t.E1[j * t.n_mu() + m]) << "\n";
+      }
+  }
+  // All files or none: every temporary is written before any is renamed.
+  AtomicFile fe(path), fa(AverageCsvPath(path)), fm(SiblingPath(path, "_ms"));
+  std::unique_ptr<AtomicFile> ff;
+  if (t.f0_axis >= 0) ff = std::make_unique<AtomicFile>(SiblingPath(path, "_f1"));
+  fe.stream() << e.str();
+  fa.stream() << avg.str();
+  fm.stream() << ms.str();
+  if (ff) ff->stream() << f1.str();
+  fe.Commit();
+  fa.Commit();
+  fm.Commit();
+  if (ff) ff->Commit();
+}
+
+void WriteAlbedoExr(const AlbedoTable& t, const std::string& path) {
+  struct Image {
+    std::string name;
+    int width, height;
+    std::vector<float> data;
+  };
+  std::vector<Image> images;
+  const auto to_float = [](const std::vector<double>& v) { return std::vector<float>(v.begin(), v.end()); };
+  images.push_back({"E", int(t.n_mu()), int(t.n1() * t.n2()), to_float(t.E)});
+  images.push_back({"E_avg", int(t.n2()), int(t.n1()), to_float(t.E_avg)});
+  images.push_back({"ms_norm", int(t.n2()), int(t.n1()), to_float(t.ms_norm)});
+  if (t.f0_axis >= 0) {
+    images.push_back({"E1", int(t.n_mu()), int(t.E1_avg.size()), to_float(t.E1)});
+    images.push_back({"E1_avg", 1, int(t.E1_avg.size()), to_float(t.E1_avg)});
+    images.push_back({"F_ms", int(t.n2()), int(t.n1()), to_float(t.F_ms)});
+  }
+  // Parts of one file share the display window; each has its own data window.
+  int max_w = 1, max_h = 1;
+  for (const Image& im : images) {
+    max_w = std::max(max_w, im.width);
+    max_h = std::max(max_h, im.height);
+  }
+  const Imath::Box2i display(Imath::V2i(0, 0), Imath::V2i(max_w - 1, max_h - 1));
+  std::vector<Imf::Header> headers;
+  for (const Image& im : images) {
+    Imf::Header h(display, Imath::Box2i(Imath::V2i(0, 0), Imath::V2i(im.width - 1, im.height - 1)));
+    h.setName(im.name);
+    h.setType(Imf::SCANLINEIMAGE);
+    h.compression() = Imf::ZIP_COMPRESSION;
+    h.channels().insert("E", Imf::Channel(Imf::FLOAT));
+    h.insert("brdfkit.model", Imf::StringAttribute(t.model));
+    h.insert("brdfkit.params", Imf::StringAttribute(t.params_text));
+    h.insert("brdfkit.axes", Imf::StringAttribute(AxesText(t)));
+    h.insert("brdfkit.nodes.mu", Imf::FloatVectorAttribute(to_float(t.mu.nodes)));
+    for (const Axis& a : t.params) h.insert("brdfkit.nodes." + a.name, Imf::FloatVectorAttribute(to_float(a.nodes)));
+    headers.push_back(h);
+  }
+  AtomicFile file(path, std::ios::out | std::ios::binary);
+  {
+    Imf::StdOFStream os(file.stream(), path.c_str());
+    Imf::MultiPartOutputFile out(os, headers.data(), int(headers.size()));
+    for (std::size_t i = 0; i < images.size(); ++i) {
+      Image& im = images[i];
+      Imf::OutputPart part(out, int(i));
+      Imf::FrameBuffer fb;
+      fb.insert("E", Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(im.data.data()), sizeof(float),
+                                sizeof(float) * im.width));
+      part.setFrameBuffer(fb);
+      part.writePixels(im.height);
+    }
+  }
+  file.Commit();
+}
+
+void WriteAlbedoHeader(const AlbedoTable& t, const std::string& path, const std::string& prefix) {
+  std::ostringstream s;
+  const auto array = [&](const std::string& name, const std::vector<double>& v, const std::string& dims,
+                         const std::string& comment) {
+    s << "// " << comment << "\n";
+    s << "static const float " << prefix << "_" << name << dims << " = {";
+    for (std::size_t i = 0; i < v.size(); ++i) {
+      if (i % 8 == 0) s << "\n   ";
+      char buf[32];
+      std::snprintf(buf, sizeof buf, " %.9gf,", v[i]);
+      s << buf;
+    }
+    s << "\n};\n\n";
+  };
+  const bool two = t.params.size() > 1;
+  const std::string dims_p = "[" + std::to_string(t.n1()) + "]" + (two ? "[" + std::to_string(t.n2()) + "]" : "");
+  s << "// Directional albedo tables generated by brdfkit albedo.\n"
+    << "// model: " << t.model << "\n"
+    << "// axes: " << AxesText(t) << " (mu = cos(theta_o); mu runs fastest)\n"
+    << "// E at mu = 0 holds the limit mu -> 0. Compensation lobe (Kulla & Conty 2017):\n"
+    << "//   f_ms(wi, wo) = (1 - E(mu_i)) (1 - E(mu_o)) * ms_norm, ms_norm = 1 / (pi (1 - E_avg)).\n"
+    << "#pragma once\n\n";
+  s << "enum { " << prefix << "_n_mu = " << t.n_mu();
+  for (const Axis& a : t.params) s << ", " << prefix << "_n_" << a.name << " = " << a.nodes.size();
+  s << " };\n\n";
+  array("mu_nodes", t.mu.nodes, "[" + std::to_string(t.n_mu()) + "]", "mu node values");
+  for (const Axis& a : t.params)
+    array(a.name + "_nodes", a.nodes, "[" + std::to_string(a.nodes.size()) + "]",
+          a.name + " node values" + (a.sqrt_spacing ? " (spaced in sqrt(" + a.name + "))" : ""));
+  array("E", t.E, dims_p + "[" + std::to_string(t.n_mu()) + "]", "E[" + t.params[0].name + "]" +
+        (two ? "[" + t.params[1].name + "]" : "") + "[mu]");
+  array("E_avg", t.E_avg, dims_p, "E_avg = 2 int_0^1 E(mu) mu dmu");
+  array("ms_norm", t.ms_norm, dims_p, "1 / (pi (1 - E_avg))");
+  if (t.f0_axis >= 0) {
+    const std::size_t n_other = t.E1_avg.size();
+    array("F_avg", t.F_avg, "[" + std::to_string(t.F_avg.size()) + "]", "Schlick F_avg = f0 + (1 - f0) / 21");
+    array("E1", t.E1, "[" + std::to_string(n_other) + "][" + std::to_string(t.n_mu()) + "]",
+          "E with F = 1 (f0 = 1), for f_ms");
+    array("E1_avg", t.E1_avg, "[" + std::to_string(n_other) + "]", "E_avg with F = 1");
+    array("F_ms", t.F_ms, dims_p, "F_avg^2 E1_avg / (1 - F_avg (1 - E1_avg)), multiplies f_ms");
+  }
+  WriteFileAtomic(path, s.str());
+}
+
+// --- energy compensation -------------------------------------------------
+
+AlbedoLookup::AlbedoLookup(const AlbedoTable& table) : t_(table) {
+  if (t_.params.size() != 1) throw ModelError("AlbedoLookup: needs a table with exactly one parameter axis");
+  if (t_.n_mu() < 4) throw ModelError("AlbedoLookup: needs at least 4 mu nodes");
+  mu_coord_ = t_.mu.nodes;
+  for (double x : t_.params[0].nodes) p_coord_.push_back(t_.params[0].sqrt_spacing ? std::sqrt(x) : x);
+}
+
+double AlbedoLookup::Interp1(const std::vector<double>& coords, double c, std::size_t& i0) const {
+  // Cell index i0 with coords[i0] <= c <= coords[i0 + 1] (clamped) and the
+  // linear weight of coords[i0 + 1].
+  if (coords.size() == 1) {
+    i0 = 0;
+    return 0;
+  }
+  const auto it = std::upper_bound(coords.begin(), coords.end(), c);
+  std::size_t i = it == coords.begin() ? 0 : std::size_t(it - coords.begin()) - 1;
+  i = std::min(i, coords.size() - 2);
+  i0 = i;
+  return std::clamp((c - coords[i]) / (coords[i + 1] - coords[i]), 0.0, 1.0);
+}
+
+double AlbedoLookup::E(double mu, double p) const {
+  std::size_t ip;
+  const double wp = Interp1(p_coord_, t_.params[0].sqrt_spacing ? std::sqrt(std::max(p, 0.0)) : p, ip);
+  // Cubic Lagrange in mu through the four nodes around mu.
+  const std::size_t n = t_.n_mu();
+  std::size_t im;
+  Interp1(mu_coord_, mu, im);
+  const std::size_t s = std::min(im > 0 ? im - 1 : 0, n - 4);
+  const auto at_p = [&](std::size_t ipp) {
+    double sum = 0;
+    for (std::size_t a = s; a < s + 4; ++a) {
+      double l = 1;
+      for (std::size_t b = s; b < s + 4; ++b)
+        if (b != a) l *= (mu - mu_coord_[b]) / (mu_coord_[a] - mu_coord_[b]);
+      sum += l * t_.at(a, ipp);
+    }
+    return sum;
+  };
+  const double e0 = at_p(ip);
+  return p_coord_.size() == 1 ? e0 : (1 - wp) * e0 + wp * at_p(ip + 1);
+}
+
+double AlbedoLookup::EAvg(double p) const {
+  std::size_t ip;
+  const double wp = Interp1(p_coord_, t_.params[0].sqrt_spacing ? std::sqrt(std::max(p, 0.0)) : p, ip);
+  return p_coord_.size() == 1 ? t_.E_avg[0] : (1 - wp) * t_.E_avg[ip] + wp * t_.E_avg[ip + 1];
+}
+
+CompensatedBxdf::CompensatedBxdf(const Bxdf<double>& base, const AlbedoTable& table)
+    : base_(base), lookup_(table), offset_(base.Info().Offset(table.params[0].param_index)) {}
+
+Rgb<double> CompensatedBxdf::Eval(const double* p, const Vec3<double>& wi, const Vec3<double>& wo) const {
+  Rgb<double> f = base_.Eval(p, wi, wo);
+  if (!SameUpperHemisphere(wi, wo)) return f;
+  const double a = p[offset_];
+  const double e_avg = lookup_.EAvg(a);
+  // E_avg = 1 means nothing is lost: no compensation.
+  if (!(e_avg < 1)) return f;
+  const double ms = (1 - lookup_.E(wi.z(), a)) * (1 - lookup_.E(wo.z(), a)) / (kPi * (1 - e_avg));
+  return f + ms;
+}
+
+}  // namespace brdfkit::validate

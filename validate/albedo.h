@@ -1,0 +1,204 @@
+// Directional albedo tables for renderers: E(mu, p) over mu = cos(theta_o)
+// and one or two model parameters, the average albedo
+// E_avg(p) = 2 int_0^1 E(mu) mu dmu, and the terms of Kulla & Conty's
+// multiple-scattering energy compensation (Kulla & Conty 2017, "Revisiting
+// Physically Based Shading at Imageworks", SIGGRAPH course, slides 17-21):
+//
+//   f_ms(wi, wo) = (1 - E(mu_i)) (1 - E(mu_o)) / (pi (1 - E_avg)),
+//   and with Fresnel: f_ms * F_avg^2 E_avg / (1 - F_avg (1 - E_avg)),
+//   F_avg = 2 int_0^1 F(mu) mu dmu.
+//
+// Quadrature. E(wo) = int f_r(wi, wo) cos(theta_i) dwi is integrated over
+// the half vector wm = normalize(wi + wo), dwi = 4 (wo.wm) dwm (Walter 2007
+// eq. 14): a specular lobe of any width sits at wm = z for every wo, and the
+// horizon wi.z = 0 is the exact curve theta_m = theta_max(phi_m), so the
+// integrand is smooth on the integration domain. Both angles are integrated
+// by adaptive Gauss-Kronrod (7/15) with breakpoints at multiples of the lobe
+// width; the error estimate |K15 - G7| is conservative for smooth integrands.
+//
+// Grazing limit. f_r = 0 at mu = 0 by convention, but E(mu) has a limit as
+// mu -> 0 (GGX alpha = 1: E(mu) = 1 - mu ln(1 + 1/mu) -> 1). The entry at
+// mu = 0 holds E(mu_0) with mu_0 = max(1e-15, min(kGrazingMu, 1e-9 w)) for a
+// lobe of angular width w: E(mu) - E(0) = O((mu / w) ln(w / mu)), so the
+// limit is reached within 1e-7 for every w >= 1e-6 (GGX alpha >= 1.6e-6);
+// AlbedoTable::limit_error reports |E(mu_0) - E(10 mu_0)|.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "brdf/model.h"
+
+namespace brdfkit::validate {
+
+inline constexpr double kGrazingMu = 1e-13;
+
+// --- one directional albedo ----------------------------------------------
+
+struct AlbedoQuadratureOptions {
+  double abs_tolerance = 1e-8;  // on each channel of E (the entries are checked to 1e-6)
+  int max_subdivisions = 400;   // per adaptive level
+  // Evaluations per directional albedo after which no interval is split
+  // further: below alpha ~ 1e-4 at grazing, rounding in f_r (the half
+  // vector of two nearly opposite tangential components) is above the
+  // tolerance and refinement cannot converge; the error estimate says so.
+  std::int64_t max_evals = 1000000;
+};
+
+struct AlbedoValue {
+  Eigen::Array3d value = Eigen::Array3d::Zero();
+  Eigen::Array3d error = Eigen::Array3d::Zero();  // estimate, per channel
+  std::int64_t evals = 0;
+};
+
+// Facts about a model at one parameter point that steer the quadrature.
+struct LobeShape {
+  double width = 1.0;            // angular half-width of the specular lobe in wm, radians
+  bool mirror_symmetric = true;  // f(wi, wo) unchanged by reflecting both about the xz plane
+};
+
+// Width from the microfacet distribution D when there is one (angle where D
+// falls to half its peak), otherwise from f_r at normal incidence.
+LobeShape EstimateLobeShape(const Bxdf<double>& bxdf, const double* params);
+
+// E(wo) per channel, wo a unit vector with wo.z > 0.
+AlbedoValue HalfVectorAlbedo(const Bxdf<double>& bxdf, const double* params, const Eigen::Vector3d& wo,
+                             const LobeShape& shape, const AlbedoQuadratureOptions& options = {});
+
+// E at mu (phi_o = 0); mu <= kGrazingMu gives the grazing limit E(kGrazingMu).
+AlbedoValue AlbedoAtMu(const Bxdf<double>& bxdf, const double* params, double mu, const LobeShape& shape,
+                       const AlbedoQuadratureOptions& options = {});
+
+// E_avg = 2 int_0^1 E(mu) mu dmu by adaptive Gauss-Kronrod in mu, with its own
+// evaluations of E (not the table's nodes).
+AlbedoValue AverageAlbedo(const Bxdf<double>& bxdf, const double* params, const LobeShape& shape,
+                          const AlbedoQuadratureOptions& options = {});
+
+// One-dimensional adaptive Gauss-Kronrod (7/15) of a vector-valued function
+// on [a, b] with initial breakpoints (inside (a, b), any order). Returns the
+// integral and stores the error estimate (max over components) in *error.
+Eigen::Array3d AdaptiveGaussKronrod(const std::function<Eigen::Array3d(double)>& f, double a, double b,
+                                    std::vector<double> breakpoints, double abs_tolerance, int max_subdivisions,
+                                    double* error, std::int64_t* evals);
+
+// --- tables ----------------------------------------------------------------
+
+enum class NodeRule {
+  kUniform,  // mu uniform on [0, 1]; roughness uniform in sqrt(p); other parameters uniform; ends included
+  kGauss,    // Gauss-Legendre nodes in the same coordinates (ends excluded); weights given
+};
+
+struct AxisSpec {
+  std::string name;  // "mu" or a scalar (or colour, all channels together) model parameter
+  int count = 0;
+  double lower = 0, upper = 0;  // range; lower == upper == 0 means the parameter's bounds
+};
+
+struct Axis {
+  std::string name;
+  std::size_t param_index = 0;  // into ModelInfo::params (unused for mu)
+  bool sqrt_spacing = false;    // nodes uniform in sqrt(value)
+  std::vector<double> nodes;
+  std::vector<double> weights;  // Gauss weights over the axis range in the value coordinate (kGauss)
+};
+
+// Parses "mu:32,alpha:32,f0:8" or "alpha:16:0.001:1" (name:count[:lower:upper]).
+std::vector<AxisSpec> ParseAxes(const std::string& text);
+
+struct AlbedoTableRequest {
+  std::vector<AxisSpec> axes;  // first "mu", then one or two parameters
+  NodeRule rule = NodeRule::kUniform;
+  AlbedoQuadratureOptions quadrature;
+  int channel = 0;  // RGB channel tabulated (the models' grey parameters make all three equal)
+};
+
+struct AlbedoTable {
+  std::string model;
+  std::vector<double> base_params;  // fixed parameter values (packed)
+  std::string params_text;          // the same as name=value,...
+  Axis mu;
+  std::vector<Axis> params;  // one or two
+  // E[(i1 * n2 + i2) * n_mu + i_mu], n2 = 1 when there is one parameter axis
+  // (the layout of the EXR image and the C arrays: mu runs fastest).
+  std::vector<double> E, E_error;
+  // E_avg[i1 * n2 + i2].
+  std::vector<double> E_avg, E_avg_error;
+  // Compensation normalisation 1 / (pi (1 - E_avg)) (infinite where E_avg = 1).
+  std::vector<double> ms_norm;
+  // With an f0 axis: F_avg (per f0 node), the F = 1 tables
+  // E1[i_other * n_mu + i_mu] and E1_avg[i_other] over the other parameter axis
+  // (one entry when there is none), and the Fresnel factor
+  // F_ms[i1 * n2 + i2] = F_avg^2 E1_avg / (1 - F_avg (1 - E1_avg)).
+  int f0_axis = -1;  // index into params, or -1
+  std::vector<double> F_avg, E1, E1_avg, F_ms;
+  double max_error = 0;    // largest quadrature error estimate over all entries
+  double limit_error = 0;  // largest |E(kGrazingMu) - E(10 kGrazingMu)| over the mu = 0 entries
+  double seconds = 0;
+
+  std::size_t n_mu() const { return mu.nodes.size(); }
+  std::size_t n1() const { return params[0].nodes.size(); }
+  std::size_t n2() const { return params.size() > 1 ? params[1].nodes.size() : 1; }
+  std::size_t Index(std::size_t i_mu, std::size_t i1, std::size_t i2 = 0) const {
+    return (i1 * n2() + i2) * n_mu() + i_mu;
+  }
+  double at(std::size_t i_mu, std::size_t i1, std::size_t i2 = 0) const { return E[Index(i_mu, i1, i2)]; }
+};
+
+// Builds the table with TBB across cells. Throws ModelError for unknown
+// axes, colour parameters other than the tabulated channel's, or ranges
+// outside the parameter bounds.
+AlbedoTable BuildAlbedoTable(const Model& model, const std::vector<double>& base_params,
+                             const AlbedoTableRequest& request);
+
+// Writers (atomic: a failure leaves no file behind).
+// CSV: "mu,<p1>[,<p2>],E" and beside it <stem>_avg.csv "<p1>[,<p2>],E_avg".
+void WriteAlbedoCsv(const AlbedoTable& table, const std::string& path);
+std::string AverageCsvPath(const std::string& path);
+// EXR: part "E" (width n_mu, height n1 * n2, rows i1 * n2 + i2) and part
+// "E_avg" (width n2, height n1), float32 channel "E"; header attributes
+// brdfkit.model, brdfkit.params, brdfkit.axes and brdfkit.nodes.<axis>.
+void WriteAlbedoExr(const AlbedoTable& table, const std::string& path);
+// C header with float arrays and node arrays.
+void WriteAlbedoHeader(const AlbedoTable& table, const std::string& path, const std::string& symbol_prefix);
+
+// --- energy compensation -------------------------------------------------
+
+// E(mu, p) looked up in a table with one parameter axis: cubic
+// (Catmull-Rom) in mu, linear in the parameter's node coordinate.
+class AlbedoLookup {
+ public:
+  explicit AlbedoLookup(const AlbedoTable& table);
+  double E(double mu, double p) const;
+  double EAvg(double p) const;
+
+ private:
+  double Interp1(const std::vector<double>& coords, double c, std::size_t& i0) const;
+  AlbedoTable t_;
+  std::vector<double> mu_coord_, p_coord_;
+};
+
+// The single-scattering model plus Kulla-Conty's compensation lobe, for a
+// table whose parameter axis is param_name (F = 1). Not a registered model:
+// a check of the table (white furnace) and a reference for renderers.
+class CompensatedBxdf final : public Bxdf<double> {
+ public:
+  CompensatedBxdf(const Bxdf<double>& base, const AlbedoTable& table);
+  const ModelInfo& Info() const override { return base_.Info(); }
+  Rgb<double> Eval(const double* p, const Vec3<double>& wi, const Vec3<double>& wo) const override;
+  BsdfSample<double> Sample(const double* p, const Vec3<double>& wo, double u1, double u2) const override {
+    return base_.Sample(p, wo, u1, u2);
+  }
+  double Pdf(const double* p, const Vec3<double>& wo, const Vec3<double>& wi) const override {
+    return base_.Pdf(p, wo, wi);
+  }
+  double SampleWeight(const double* p) const override { return base_.SampleWeight(p); }
+
+ private:
+  const Bxdf<double>& base_;
+  AlbedoLookup lookup_;
+  std::size_t offset_;
+};
+
+}  // namespace brdfkit::validate

@@ -1,0 +1,307 @@
+#include "validate/albedo.h"
+
+#include <gtest/gtest.h>
+
+#include <ImfFloatVectorAttribute.h>
+#include <ImfFrameBuffer.h>
+#include <ImfHeader.h>
+#include <ImfInputPart.h>
+#include <ImfMultiPartInputFile.h>
+#include <ImfStringAttribute.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "brdf/model.h"
+#include "brdf/params.h"
+#include "validate/quadrature.h"
+
+namespace brdfkit::validate {
+namespace {
+
+double GgxAlpha1(double mu) { return mu == 0 ? 1.0 : 1 - mu * std::log1p(1 / mu); }
+double GgxSeparableAlpha1(double mu) { return 2 * (1 - std::log(2.0)) / (1 + mu); }
+
+AlbedoTable Table(const std::string& model, const std::string& params, const std::string& axes,
+                  NodeRule rule = NodeRule::kUniform) {
+  const Model m = Model::Parse(model);
+  AlbedoTableRequest req;
+  req.axes = ParseAxes(axes);
+  req.rule = rule;
+  return BuildAlbedoTable(m, ParseParams(m.Info(), params), req);
+}
+
+std::filesystem::path TempDir(const std::string& name) {
+  auto d = std::filesystem::temp_directory_path() / ("brdfkit_albedo_" + name);
+  std::filesystem::remove_all(d);
+  std::filesystem::create_directories(d);
+  return d;
+}
+
+// Brute-force reference in a different parameterisation: wi in (cos theta_i,
+// phi_i) around the normal, composite 24-point Gauss-Legendre panels refined
+// geometrically towards the mirror direction (no adaptivity).
+double BruteForceAlbedo(const Bxdf<double>& b, const double* p, double mu_o, double width) {
+  const GaussLegendre gl(24);
+  const double sin_o = std::sqrt(1 - mu_o * mu_o);
+  const Eigen::Vector3d wo(sin_o, 0, mu_o);
+  // The mirror direction has mu_i = mu_o, phi_i = pi.
+  std::vector<double> mu_breaks{0, 1}, phi_breaks{0, kPi};
+  const double theta_o = std::acos(mu_o);
+  for (double d = width / 64; d < 2; d *= 2) {
+    for (double s : {-1.0, 1.0}) {
+      const double m = std::cos(std::clamp(theta_o + s * d, 0.0, kPi / 2));
+      if (m > 0 && m < 1) mu_breaks.push_back(m);
+    }
+    const double ph = kPi - d / std::max(sin_o, 1e-3);
+    if (ph > 0) phi_breaks.push_back(ph);
+  }
+  std::sort(mu_breaks.begin(), mu_breaks.end());
+  std::sort(phi_breaks.begin(), phi_breaks.end());
+  double sum = 0;
+  for (std::size_t a = 0; a + 1 < mu_breaks.size(); ++a)
+    for (int i = 0; i < gl.size(); ++i) {
+      const double h = mu_breaks[a + 1] - mu_breaks[a];
+      const double mu = mu_breaks[a] + h * gl.node01(i);
+      const double s = std::sqrt(1 - mu * mu);
+      for (std::size_t c = 0; c + 1 < phi_breaks.size(); ++c)
+        for (int j = 0; j < gl.size(); ++j) {
+          const double k = phi_breaks[c + 1] - phi_breaks[c];
+          const double phi = phi_breaks[c] + k * gl.node01(j);
+          const Eigen::Vector3d wi(s * std::cos(phi), s * std::sin(phi), mu);
+          sum += h * gl.weight01(i) * k * gl.weight01(j) * b.Eval(p, wi, wo)[0] * mu;
+        }
+    }
+  return 2 * sum;  // phi in [0, pi] by symmetry
+}
+
+TEST(AlbedoTable, GgxAlphaOneMatchesClosedFormIncludingGrazingLimit) {
+  const AlbedoTable t = Table("ggx", "f0=1", "mu:17,alpha:1:1:1");
+  ASSERT_EQ(t.n_mu(), 17u);
+  EXPECT_EQ(t.mu.nodes.front(), 0.0);
+  EXPECT_EQ(t.mu.nodes.back(), 1.0);
+  for (std::size_t m = 0; m < t.n_mu(); ++m)
+    EXPECT_NEAR(t.at(m, 0), GgxAlpha1(t.mu.nodes[m]), 1e-7) << "mu = " << t.mu.nodes[m];
+  EXPECT_NEAR(t.at(t.n_mu() - 1, 0), 1 - std::log(2.0), 1e-8);
+  // E_avg = 2 int_0^1 (1 - mu ln(1 + 1/mu)) mu dmu = 4/3 (1 - ln 2).
+  EXPECT_NEAR(t.E_avg[0], 4.0 / 3.0 * (1 - std::log(2.0)), 1e-8);
+  EXPECT_LT(t.max_error, 1e-7);
+  EXPECT_LT(t.limit_error, 1e-7);
+}
+
+TEST(AlbedoTable, GgxSeparableAlphaOneMatchesClosedForm) {
+  const AlbedoTable t = Table("ggx_separable", "f0=1", "mu:9,alpha:1:1:1");
+  for (std::size_t m = 0; m < t.n_mu(); ++m)
+    EXPECT_NEAR(t.at(m, 0), GgxSeparableAlpha1(t.mu.nodes[m]), 1e-7) << "mu = " << t.mu.nodes[m];
+  // 2 int 2 (1 - ln 2) mu / (1 + mu) dmu = 4 (1 - ln 2)^2.
+  EXPECT_NEAR(t.E_avg[0], 4 * std::pow(1 - std::log(2.0), 2), 1e-8);
+}
+
+TEST(AlbedoTable, LambertIsItsAlbedoEverywhere) {
+  const AlbedoTable t = Table("lambert", "", "mu:5,albedo:3");
+  ASSERT_EQ(t.n1(), 3u);
+  EXPECT_EQ(t.params[0].nodes.front(), 0.0);
+  EXPECT_EQ(t.params[0].nodes.back(), 1.0);
+  for (std::size_t i = 0; i < 3; ++i) {
+    for (std::size_t m = 0; m < t.n_mu(); ++m) EXPECT_NEAR(t.at(m, i), t.params[0].nodes[i], 1e-9);
+    EXPECT_NEAR(t.E_avg[i], t.params[0].nodes[i], 1e-9);
+  }
+}
+
+TEST(AlbedoTable, MatchesIndependentBruteForceQuadrature) {
+  const Model m = Model::Parse("ggx");
+  const auto b = m.Make<double>();
+  // Narrow, medium and wide lobes, near-normal and grazing views.
+  for (double alpha : {1e-3, 0.02, 0.3}) {
+    const AlbedoTable t = Table("ggx", "f0=1", "mu:6:0.1:1,alpha:1:" + FormatDouble(alpha) + ":" + FormatDouble(alpha));
+    std::vector<double> p = ParseParams(m.Info(), "f0=1,alpha=" + FormatDouble(alpha));
+    for (std::size_t i : {0u, 2u, 5u}) {
+      const double mu = t.mu.nodes[i];
+      EXPECT_NEAR(t.at(i, 0), BruteForceAlbedo(*b, p.data(), mu, alpha), 2e-8) << "alpha " << alpha << " mu " << mu;
+    }
+  }
+}
+
+TEST(AlbedoTable, UniformNodesAreUniformInSqrtRoughness) {
+  const AlbedoTable t = Table("ggx", "", "mu:3,alpha:5:0.01:1");
+  const auto& a = t.params[0].nodes;
+  ASSERT_EQ(a.size(), 5u);
+  EXPECT_DOUBLE_EQ(a.front(), 0.01);
+  EXPECT_DOUBLE_EQ(a.back(), 1.0);
+  for (std::size_t i = 0; i < 5; ++i) EXPECT_NEAR(std::sqrt(a[i]), 0.1 + 0.9 * i / 4.0, 1e-15);
+  // Default range: the parameter's bounds.
+  const AlbedoTable d = Table("ggx", "", "mu:2,alpha:2");
+  EXPECT_DOUBLE_EQ(d.params[0].nodes.front(), 1e-7);
+  EXPECT_DOUBLE_EQ(d.params[0].nodes.back(), 1.0);
+}
+
+TEST(AlbedoTable, GaussNodesIntegrateTheTableToEAvg) {
+  const AlbedoTable t = Table("ggx", "f0=1", "mu:24,alpha:1:0.5:0.5", NodeRule::kGauss);
+  EXPECT_GT(t.mu.nodes.front(), 0.0);
+  double sum = 0, wsum = 0;
+  for (std::size_t m = 0; m < t.n_mu(); ++m) {
+    sum += 2 * t.mu.weights[m] * t.mu.nodes[m] * t.at(m, 0);
+    wsum += t.mu.weights[m];
+  }
+  EXPECT_NEAR(wsum, 1.0, 1e-14);
+  // The table's own Gauss sum approximates the separately computed E_avg.
+  EXPECT_NEAR(sum, t.E_avg[0], 1e-6);
+}
+
+TEST(AlbedoTable, FresnelAxisGivesKullaContyTerms) {
+  const AlbedoTable t = Table("ggx", "", "mu:5,alpha:2:0.2:0.8,f0:3");
+  ASSERT_EQ(t.f0_axis, 1);
+  ASSERT_EQ(t.F_avg.size(), 3u);
+  // F_avg from a quadrature of Schlick's formula.
+  const GaussLegendre gl(40);
+  for (std::size_t k = 0; k < 3; ++k) {
+    const double f0 = t.params[1].nodes[k];
+    double q = 0;
+    for (int i = 0; i < gl.size(); ++i) q += 2 * gl.weight01(i) * gl.node01(i) * FresnelSchlick(f0, gl.node01(i));
+    EXPECT_NEAR(t.F_avg[k], q, 1e-14);
+  }
+  for (std::size_t i1 = 0; i1 < 2; ++i1) {
+    // At f0 = 1 the table equals the F = 1 table and F_ms = 1.
+    for (std::size_t m = 0; m < t.n_mu(); ++m) EXPECT_NEAR(t.at(m, i1, 2), t.E1[i1 * t.n_mu() + m], 1e-12);
+    EXPECT_NEAR(t.F_ms[i1 * 3 + 2], 1.0, 1e-12);
+    // Schlick is linear in f0, so is E.
+    for (std::size_t m = 0; m < t.n_mu(); ++m)
+      EXPECT_NEAR(t.at(m, i1, 1), 0.5 * (t.at(m, i1, 0) + t.at(m, i1, 2)), 2e-9);
+    // F_ms = F_avg^2 E_avg / (1 - F_avg (1 - E_avg)) < F_avg at f0 = 0.
+    const double fa = t.F_avg[0], e = t.E1_avg[i1];
+    EXPECT_NEAR(t.F_ms[i1 * 3], fa * fa * e / (1 - fa * (1 - e)), 1e-15);
+  }
+}
+
+TEST(EnergyCompensation, WhiteFurnaceWithCompensationLobe) {
+  const Model m = Model::Parse("ggx");
+  const auto b = m.Make<double>();
+  const AlbedoTable t = Table("ggx", "f0=1", "mu:129,alpha:3:0.25:1");
+  const CompensatedBxdf comp(*b, t);
+  for (std::size_t i = 0; i < t.n1(); ++i) {
+    const double alpha = t.params[0].nodes[i];
+    const std::vector<double> p = ParseParams(m.Info(), "f0=1,alpha=" + FormatDouble(alpha));
+    const LobeShape shape = EstimateLobeShape(comp, p.data());
+    for (double mu : {0.05, 0.3, 0.7, 1.0}) {
+      const double single = AlbedoAtMu(*b, p.data(), mu, EstimateLobeShape(*b, p.data())).value[0];
+      EXPECT_LT(single, 0.999) << "alpha " << alpha;  // energy is lost without compensation
+      const AlbedoValue e = AlbedoAtMu(comp, p.data(), mu, shape);
+      EXPECT_NEAR(e.value[0], 1.0, 2e-6) << "alpha " << alpha << " mu " << mu;
+    }
+  }
+}
+
+TEST(AlbedoOutput, CsvHasHeaderRowsAndAverageFile) {
+  const AlbedoTable t = Table("ggx", "f0=1", "mu:3,alpha:2:0.5:1");
+  const auto dir = TempDir("csv");
+  const std::string path = (dir / "ggx.csv").string();
+  WriteAlbedoCsv(t, path);
+  std::ifstream in(path);
+  std::string line;
+  std::getline(in, line);
+  EXPECT_EQ(line, "mu,alpha,E");
+  int rows = 0;
+  while (std::getline(in, line)) {
+    std::stringstream ss(line);
+    std::string a, b, c;
+    std::getline(ss, a, ',');
+    std::getline(ss, b, ',');
+    std::getline(ss, c, ',');
+    double mu, alpha, e;
+    ASSERT_TRUE(ParseDouble(a, mu) && ParseDouble(b, alpha) && ParseDouble(c, e)) << line;
+    if (alpha == 1.0) {
+      EXPECT_NEAR(e, GgxAlpha1(mu), 1e-7);
+    }
+    ++rows;
+  }
+  EXPECT_EQ(rows, 6);
+  EXPECT_EQ(AverageCsvPath(path), (dir / "ggx_avg.csv").string());
+  std::ifstream avg(AverageCsvPath(path));
+  std::getline(avg, line);
+  EXPECT_EQ(line, "alpha,E_avg");
+  std::getline(avg, line);
+  std::getline(avg, line);
+  EXPECT_EQ(line.substr(0, 2), "1,");
+  double e_avg;
+  ASSERT_TRUE(ParseDouble(line.substr(2), e_avg));
+  EXPECT_NEAR(e_avg, 4.0 / 3.0 * (1 - std::log(2.0)), 1e-8);
+  EXPECT_TRUE(std::filesystem::exists(dir / "ggx_ms.csv"));
+  // Only the finished files are left.
+  int files = 0;
+  for ([[maybe_unused]] const auto& f : std::filesystem::directory_iterator(dir)) ++files;
+  EXPECT_EQ(files, 3);
+}
+
+TEST(AlbedoOutput, ExrStoresFloatImagesAndNodeAttributes) {
+  const AlbedoTable t = Table("ggx", "f0=1", "mu:4,alpha:3:0.25:1");
+  const auto dir = TempDir("exr");
+  const std::string path = (dir / "ggx.exr").string();
+  WriteAlbedoExr(t, path);
+  Imf::MultiPartInputFile in(path.c_str());
+  ASSERT_GE(in.parts(), 2);
+  const Imf::Header& h = in.header(0);
+  EXPECT_EQ(h.name(), "E");
+  const auto* mu = h.findTypedAttribute<Imf::FloatVectorAttribute>("brdfkit.nodes.mu");
+  const auto* alpha = h.findTypedAttribute<Imf::FloatVectorAttribute>("brdfkit.nodes.alpha");
+  ASSERT_TRUE(mu && alpha);
+  ASSERT_EQ(mu->value().size(), 4u);
+  ASSERT_EQ(alpha->value().size(), 3u);
+  EXPECT_EQ(h.findTypedAttribute<Imf::StringAttribute>("brdfkit.model")->value(), "ggx");
+  const auto dw = h.dataWindow();
+  const int w = dw.max.x - dw.min.x + 1, hgt = dw.max.y - dw.min.y + 1;
+  ASSERT_EQ(w, 4);
+  ASSERT_EQ(hgt, 3);
+  std::vector<float> px(w * hgt);
+  Imf::InputPart part(in, 0);
+  Imf::FrameBuffer fb;
+  fb.insert("E", Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(px.data()), sizeof(float), sizeof(float) * w));
+  part.setFrameBuffer(fb);
+  part.readPixels(dw.min.y, dw.max.y);
+  for (int r = 0; r < hgt; ++r)
+    for (int c = 0; c < w; ++c) EXPECT_FLOAT_EQ(px[r * w + c], float(t.at(c, r)));
+  // Row alpha = 1 holds the closed form.
+  for (int c = 0; c < w; ++c) EXPECT_NEAR(px[2 * w + c], GgxAlpha1(mu->value()[c]), 1e-6);
+  EXPECT_EQ(in.header(1).name(), "E_avg");
+}
+
+TEST(AlbedoOutput, HeaderHasArraysForRenderers) {
+  const AlbedoTable t = Table("ggx", "f0=1", "mu:4,alpha:2:0.25:1");
+  const auto dir = TempDir("header");
+  const std::string path = (dir / "ggx_albedo.h").string();
+  WriteAlbedoHeader(t, path, "ggx_albedo");
+  std::ifstream in(path);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  const std::string s = ss.str();
+  EXPECT_NE(s.find("static const float ggx_albedo_E[2][4] = {"), std::string::npos);
+  EXPECT_NE(s.find("static const float ggx_albedo_mu_nodes[4]"), std::string::npos);
+  EXPECT_NE(s.find("static const float ggx_albedo_alpha_nodes[2]"), std::string::npos);
+  EXPECT_NE(s.find("static const float ggx_albedo_E_avg[2]"), std::string::npos);
+  EXPECT_NE(s.find("ggx_albedo_n_mu = 4"), std::string::npos);
+}
+
+TEST(AlbedoOutput, UnwritableTargetLeavesNothing) {
+  const AlbedoTable t = Table("lambert", "", "mu:2,albedo:2");
+  const auto dir = TempDir("bad");
+  std::filesystem::create_directories(dir / "x.csv");  // a directory where the file should go
+  EXPECT_ANY_THROW(WriteAlbedoCsv(t, (dir / "x.csv").string()));
+  EXPECT_FALSE(std::filesystem::exists(dir / "x_avg.csv"));
+  EXPECT_ANY_THROW(WriteAlbedoExr(t, (dir / "missing" / "t.exr").string()));
+  EXPECT_FALSE(std::filesystem::exists(dir / "missing"));
+}
+
+TEST(AlbedoTable, RejectsBadAxes) {
+  EXPECT_THROW(ParseAxes("mu:x"), ModelError);
+  EXPECT_THROW(ParseAxes("mu:0"), ModelError);
+  EXPECT_THROW(ParseAxes("mu:4:1"), ModelError);
+  EXPECT_THROW(ParseAxes("alpha:4:1:0.5"), ModelError);
+  EXPECT_THROW(Table("ggx", "", "mu:4,roughness:4"), ModelError);
+  EXPECT_THROW(Table("ggx", "", "alpha:4,mu:4"), ModelError);
+  EXPECT_THROW(Table("ggx", "", "mu:4,alpha:4:0:1"), ModelError);  // alpha below its bound
+  EXPECT_THROW(Table("ggx", "", "mu:4,alpha:4,alpha:3"), ModelError);
+}
+
+}  // namespace
+}  // namespace brdfkit::validate

@@ -1,0 +1,366 @@
+#include "validate/check.h"
+
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <random>
+
+#include "validate/integrators.h"
+#include "validate/sampling_check.h"
+
+namespace brdfkit::validate {
+
+namespace {
+
+using Eigen::Array3d;
+using Eigen::Vector3d;
+
+Vector3d Spherical(double theta, double phi) {
+  return Vector3d(std::sin(theta) * std::cos(phi), std::sin(theta) * std::sin(phi), std::cos(theta));
+}
+
+Vector3d FromMu(double mu, double phi) {
+  const double s = std::sqrt(std::max(0.0, (1 - mu) * (1 + mu)));
+  return Vector3d(s * std::cos(phi), s * std::sin(phi), mu);
+}
+
+std::string Num(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.6g", v);
+  return buf;
+}
+
+std::string Dir(const Vector3d& w) {
+  const double theta = std::acos(std::clamp(w.z(), -1.0, 1.0)) * 180 / kPi;
+  const double phi = std::atan2(w.y(), w.x()) * 180 / kPi;
+  return "(theta " + Num(theta) + " deg, phi " + Num(phi) + " deg)";
+}
+
+// Structured pairs of the reciprocity test, plus random ones.
+std::vector<std::pair<Vector3d, Vector3d>> ReciprocityPairs(int random_pairs, std::uint64_t seed) {
+  std::vector<std::pair<Vector3d, Vector3d>> pairs;
+  const double grazing = kPi / 2 - 1e-6;  // 1e-6 rad above the horizon
+  const std::vector<double> thetas = {0.0, 0.1, 0.4, 0.7, 1.0, 1.2, 1.4, 1.5, 1.55, 1.5697, grazing};
+  const std::vector<double> phis = {0.0, 0.5, 1.3, kPi / 2, 2.2, 3.0, kPi, 4.0, 5.5};
+  const Vector3d normal = Vector3d::UnitZ();
+  for (double t : thetas)
+    for (double p : phis) {
+      const Vector3d w = Spherical(t, p);
+      pairs.emplace_back(normal, w);                                  // normal against everything
+      pairs.emplace_back(Spherical(grazing, p + 0.7), w);             // grazing against everything
+      pairs.emplace_back(Reflect(w), w);                              // mirror
+      pairs.emplace_back(Spherical(std::min(t + 1e-3, grazing), p + 1e-3), w);  // near retro-reflection
+      pairs.emplace_back(w, w);                                       // wi = wo
+    }
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> uni(0.0, 1.0);
+  for (int i = 0; i < random_pairs; ++i) {
+    const double a = uni(rng), b = uni(rng), c = uni(rng), d = uni(rng);
+    // Uniform over the hemisphere: cos(theta) uniform; 1 - u keeps it > 0.
+    pairs.emplace_back(FromMu(1 - a, 2 * kPi * b), FromMu(1 - c, 2 * kPi * d));
+  }
+  return pairs;
+}
+
+bool RotationInvariant(const Bxdf<double>& bxdf, const double* p) {
+  for (int k = 0; k < 16; ++k) {
+    const Vector3d wi = Spherical(0.1 + 0.09 * k, 0.37 * k), wo = Spherical(1.4 - 0.08 * k, 2.0 + 0.51 * k);
+    const double g = 0.3 + 0.35 * k;
+    const Eigen::Matrix3d r = Eigen::AngleAxisd(g, Vector3d::UnitZ()).toRotationMatrix();
+    const Array3d a = bxdf.Eval(p, wi, wo), b = bxdf.Eval(p, r * wi, r * wo);
+    const double scale = std::max(a.abs().maxCoeff(), b.abs().maxCoeff());
+    if ((a - b).abs().maxCoeff() > 1e-9 * scale) return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+CheckResult CheckPlausibility(const Bxdf<double>& bxdf, const double* p, const CheckOptions& o) {
+  const auto t0 = std::chrono::steady_clock::now();
+  CheckResult r;
+  const ModelInfo& info = bxdf.Info();
+
+  // --- reciprocity and values ---
+  r.min_value = std::numeric_limits<double>::infinity();
+  for (const auto& [wi, wo] : ReciprocityPairs(o.random_pairs, o.seed)) {
+    const Array3d a = bxdf.Eval(p, wi, wo), b = bxdf.Eval(p, wo, wi);
+    ++r.pairs_checked;
+    bool finite = true;
+    for (int c = 0; c < 3; ++c)
+      for (double v : {a[c], b[c]}) {
+        ++r.values_checked;
+        if (!std::isfinite(v)) {
+          ++r.nonfinite_count;
+          finite = false;
+        } else {
+          r.min_value = std::min(r.min_value, v);
+        }
+      }
+    if (!finite) continue;
+    const double scale = std::max(a.abs().maxCoeff(), b.abs().maxCoeff());
+    // Values in the subnormal range carry no relative precision.
+    if (!(scale > 1e-290)) continue;
+    const double rel = (a - b).abs().maxCoeff() / scale;
+    if (rel > r.reciprocity_max_rel_error) {
+      r.reciprocity_max_rel_error = rel;
+      r.reciprocity_worst_wi = wi;
+      r.reciprocity_worst_wo = wo;
+    }
+  }
+  if (!std::isfinite(r.min_value)) r.min_value = 0;
+  if (r.reciprocity_max_rel_error > o.reciprocity_tolerance)
+    r.reasons.push_back("reciprocity: relative asymmetry " + Num(r.reciprocity_max_rel_error) + " > " +
+                        Num(o.reciprocity_tolerance) + " at wi " + Dir(r.reciprocity_worst_wi) + ", wo " +
+                        Dir(r.reciprocity_worst_wo));
+  if (r.nonfinite_count > 0)
+    r.reasons.push_back("values: " + std::to_string(r.nonfinite_count) + " of " + std::to_string(r.values_checked) +
+                        " evaluated values are not finite");
+  if (r.min_value < 0) r.reasons.push_back("values: negative f_r (min " + Num(r.min_value) + ")");
+
+  // --- energy conservation: search for the largest directional albedo ---
+  r.rotation_invariant = RotationInvariant(bxdf, p);
+  IntegrateOptions io;
+  io.budget = o.albedo_budget;
+  io.abs_tolerance = 1e-8;
+  io.rel_tolerance = 1e-9;
+  struct Sample {
+    double mu, phi, value, error;
+    Array3d channels;
+  };
+  const auto albedo = [&](double mu, double phi) {
+    const Estimate e = DirectionalAlbedo(bxdf, p, FromMu(mu, phi), Method::kAdaptive, io);
+    ++r.albedo_evaluations;
+    int c;
+    const double v = e.value.maxCoeff(&c);
+    return Sample{mu, phi, std::isfinite(v) ? v : std::numeric_limits<double>::infinity(), e.error[c], e.value};
+  };
+  const std::vector<double> mus = {1.0, 0.85, 0.7, 0.5, 0.3, 0.15, 0.05, 1e-2, 1e-3, 1e-4, 1e-5, 1e-6, 1e-7};
+  std::vector<double> phis = {0.0};
+  if (!r.rotation_invariant)
+    for (int k = 1; k < 8; ++k) phis.push_back(k * kPi / 8);
+  Sample best{1, 0, -std::numeric_limits<double>::infinity(), 0, Array3d::Zero()};
+  std::size_t best_i = 0;
+  double best_phi = 0;
+  r.albedo_max_per_channel = Array3d::Constant(-std::numeric_limits<double>::infinity());
+  const auto take = [&](const Sample& s) {
+    r.albedo_max_per_channel = r.albedo_max_per_channel.max(s.channels);
+    if (s.value > best.value) best = s;
+  };
+  for (double phi : phis)
+    for (std::size_t i = 0; i < mus.size(); ++i) {
+      const Sample s = albedo(mus[i], phi);
+      if (s.value > best.value) {
+        best_i = i;
+        best_phi = phi;
+      }
+      take(s);
+      if (i == 0) r.albedo_at_normal = std::max(r.albedo_at_normal, s.value);
+      if (i + 1 == mus.size()) r.albedo_at_grazing = std::max(r.albedo_at_grazing, s.value);
+    }
+  // Golden-section refinement in log(mu) between the grid neighbours of the
+  // best node, then in phi for models that are not rotation invariant.
+  const double golden = 0.5 * (std::sqrt(5.0) - 1);
+  {
+    double lo = std::log(mus[std::min(best_i + 1, mus.size() - 1)]), hi = std::log(mus[best_i > 0 ? best_i - 1 : 0]);
+    double x1 = hi - golden * (hi - lo), x2 = lo + golden * (hi - lo);
+    Sample s1 = albedo(std::exp(x1), best_phi), s2 = albedo(std::exp(x2), best_phi);
+    take(s1);
+    take(s2);
+    for (int it = 0; it < o.golden_steps && hi - lo > 1e-6; ++it) {
+      if (s1.value > s2.value) {
+        hi = x2;
+        x2 = x1;
+        s2 = s1;
+        x1 = hi - golden * (hi - lo);
+        s1 = albedo(std::exp(x1), best_phi);
+        take(s1);
+      } else {
+        lo = x1;
+        x1 = x2;
+        s1 = s2;
+        x2 = lo + golden * (hi - lo);
+        s2 = albedo(std::exp(x2), best_phi);
+        take(s2);
+      }
+    }
+  }
+  if (!r.rotation_invariant) {
+    double lo = best.phi - kPi / 8, hi = best.phi + kPi / 8;
+    const double mu = best.mu;
+    double x1 = hi - golden * (hi - lo), x2 = lo + golden * (hi - lo);
+    Sample s1 = albedo(mu, x1), s2 = albedo(mu, x2);
+    take(s1);
+    take(s2);
+    for (int it = 0; it < o.golden_steps / 2; ++it) {
+      if (s1.value > s2.value) {
+        hi = x2;
+        x2 = x1;
+        s2 = s1;
+        x1 = hi - golden * (hi - lo);
+        s1 = albedo(mu, x1);
+        take(s1);
+      } else {
+        lo = x1;
+        x1 = x2;
+        s1 = s2;
+        x2 = lo + golden * (hi - lo);
+        s2 = albedo(mu, x2);
+        take(s2);
+      }
+    }
+  }
+  r.albedo_max = best.value;
+  r.albedo_max_error = best.error;
+  r.albedo_max_at_mu = best.mu;
+  r.albedo_max_at_phi = best.phi;
+  if (!(r.albedo_max <= 1 + r.albedo_max_error + o.albedo_slack))
+    r.reasons.push_back("energy: directional albedo " + Num(r.albedo_max) + " > 1 at mu = " + Num(r.albedo_max_at_mu) +
+                        (r.rotation_invariant ? "" : ", phi = " + Num(r.albedo_max_at_phi * 180 / kPi) + " deg") +
+                        " (error estimate " + Num(r.albedo_max_error) + ")");
+
+  // --- sampling consistency ---
+  if (o.sampling) {
+    r.sampling_checked = true;
+    std::vector<Vector3d> wos;
+    for (double deg : {0.0, 30.0, 60.0, 80.0}) wos.push_back(Spherical(deg * kPi / 180, 0.0));
+    if (!r.rotation_invariant)
+      for (double deg : {30.0, 80.0}) wos.push_back(Spherical(deg * kPi / 180, 1.0));
+    SamplingCheckOptions so;
+    so.samples = o.sampling_samples;
+    so.seed = o.seed;
+    double worst_gap = -1;
+    bool pdf_bad = false;
+    std::string pdf_note;
+    for (const Vector3d& wo : wos) {
+      const SamplingCheckResult s = CheckSampling(bxdf, p, wo, so);
+      ++r.sampling_directions;
+      r.chi2_min_p = std::min(r.chi2_min_p, s.p_value);
+      r.pdf_mismatch += s.pdf_mismatch;
+      const double vf = s.valid_fraction;
+      const double se = std::sqrt(std::max(vf * (1 - vf), 0.0) / double(std::max<std::int64_t>(so.samples, 1)));
+      const double gap = std::abs(s.pdf_integral - vf);
+      if (gap > worst_gap) {
+        worst_gap = gap;
+        r.pdf_integral = s.pdf_integral;
+        r.valid_fraction = vf;
+      }
+      if (!std::isfinite(s.pdf_integral) || gap > 5 * se + 2e-3 || s.pdf_integral > 1 + 2e-3 || s.nonfinite > 0) {
+        if (!pdf_bad)
+          pdf_note = "sampling: pdf integral " + Num(s.pdf_integral) + " vs valid sample fraction " + Num(vf) +
+                     " at wo " + Dir(wo) + (s.nonfinite > 0 ? ", non-finite samples" : "");
+        pdf_bad = true;
+      }
+    }
+    const int m = r.sampling_directions;
+    // Sidak: P(min of m independent p-values <= p) = 1 - (1 - p)^m.
+    r.chi2_p_value = 1 - std::pow(1 - r.chi2_min_p, m);
+    if (pdf_bad) r.reasons.push_back(pdf_note);
+    if (r.chi2_p_value < o.significance)
+      r.reasons.push_back("sampling: chi-square p-value " + Num(r.chi2_p_value) + " (Sidak over " +
+                          std::to_string(m) + " directions) < " + Num(o.significance));
+  }
+
+  // --- microfacet normalisation ---
+  if (const MicrofacetView<double>* mf = bxdf.Microfacet()) {
+    r.microfacet = true;
+    const double width = std::max(LobeWidth(info, p), 1e-7);
+    IntegrateOptions mo = io;
+    mo.abs_tolerance = 1e-9;
+    const Estimate dn = IntegrateHemisphere(
+        [&](const Vector3d& m) { return Array3d::Constant(mf->D(p, m) * m.z()); }, Method::kAdaptive, mo,
+        Vector3d::UnitZ(), width);
+    r.d_normalisation = dn.value[0];
+    r.d_normalisation_error = dn.error[0];
+    if (!(std::abs(r.d_normalisation - 1) <= r.d_normalisation_error + o.normalisation_tolerance))
+      r.reasons.push_back("microfacet: int D cos = " + Num(r.d_normalisation) + " != 1");
+    r.has_smith_g1 = mf->HasSmithG1();
+    if (r.has_smith_g1) {
+      r.furnace_min = std::numeric_limits<double>::infinity();
+      r.furnace_max = -std::numeric_limits<double>::infinity();
+      std::vector<Vector3d> wos;
+      for (double deg : {0.0, 45.0, 80.0, 89.0}) wos.push_back(Spherical(deg * kPi / 180, 0.0));
+      if (!r.rotation_invariant) wos.push_back(Spherical(70 * kPi / 180, 1.0));
+      for (const Vector3d& wo : wos) {
+        const Estimate f = IntegrateHemisphere(
+            [&](const Vector3d& m) {
+              return Array3d::Constant(mf->D(p, m) * mf->G1(p, wo, m) * std::max(0.0, wo.dot(m)) / wo.z());
+            },
+            Method::kAdaptive, mo, Vector3d::UnitZ(), width);
+        r.furnace_min = std::min(r.furnace_min, f.value[0]);
+        r.furnace_max = std::max(r.furnace_max, f.value[0]);
+        r.furnace_error = std::max(r.furnace_error, f.error[0]);
+      }
+      const double dev = std::max(std::abs(r.furnace_min - 1), std::abs(r.furnace_max - 1));
+      if (!(dev <= r.furnace_error + o.normalisation_tolerance))
+        r.reasons.push_back("microfacet: weak white furnace in [" + Num(r.furnace_min) + ", " + Num(r.furnace_max) +
+                            "], not 1");
+    }
+  }
+
+  r.plausible = r.reasons.empty();
+  r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return r;
+}
+
+std::vector<std::vector<double>> SweepGrid(const ModelInfo& info, const std::vector<double>& base, int per_axis,
+                                           const std::vector<std::size_t>& fixed, std::size_t max_points) {
+  std::vector<std::size_t> free;
+  for (std::size_t i = 0; i < info.params.size(); ++i)
+    if (std::find(fixed.begin(), fixed.end(), i) == fixed.end() && info.params[i].lower < info.params[i].upper)
+      free.push_back(i);
+  int n = std::max(per_axis, 2);
+  const auto count = [&](int k) {
+    double c = 1;
+    for (std::size_t j = 0; j < free.size(); ++j) c *= k;
+    return c;
+  };
+  while (n > 2 && count(n) > double(max_points)) --n;
+  std::vector<std::vector<double>> values(free.size());
+  for (std::size_t j = 0; j < free.size(); ++j) {
+    const ParamInfo& pi = info.params[free[j]];
+    const bool log_scale = pi.scale == ParamInfo::Scale::kLog && pi.lower > 0;
+    for (int k = 0; k < n; ++k) {
+      const double t = double(k) / (n - 1);
+      double v = log_scale ? std::exp(std::log(pi.lower) + t * (std::log(pi.upper) - std::log(pi.lower)))
+                           : pi.lower + t * (pi.upper - pi.lower);
+      if (k == 0) v = pi.lower;
+      if (k == n - 1) v = pi.upper;
+      values[j].push_back(v);
+    }
+  }
+  std::vector<std::vector<double>> points;
+  std::vector<int> idx(free.size(), 0);
+  while (true) {
+    std::vector<double> pt = base;
+    for (std::size_t j = 0; j < free.size(); ++j) {
+      const std::size_t off = info.Offset(free[j]);
+      for (int c = 0; c < (info.params[free[j]].colour ? 3 : 1); ++c) pt[off + c] = values[j][idx[j]];
+    }
+    points.push_back(pt);
+    std::size_t j = 0;
+    for (; j < free.size(); ++j) {
+      if (++idx[j] < n) break;
+      idx[j] = 0;
+    }
+    if (j == free.size()) break;
+  }
+  return points;
+}
+
+SweepResult SweepPlausibility(const Model& model, const std::vector<std::vector<double>>& points,
+                              const CheckOptions& options) {
+  SweepResult out;
+  out.points = points;
+  out.results.resize(points.size());
+  const auto bxdf = model.Make<double>();
+  tbb::parallel_for(std::size_t(0), points.size(), [&](std::size_t i) {
+    out.results[i] = CheckPlausibility(*bxdf, points[i].data(), options);
+  });
+  return out;
+}
+
+}  // namespace brdfkit::validate
