@@ -347,7 +347,7 @@ TEST(ClassicSpecular, SamplingMatchesPdf) {
       {"cook_torrance", "m=0.3,eta=1.5"},
       {"ward", "rho_d=0.3,rho_s=0.2,alpha_x=0.3,alpha_y=0.15"},
       {"ward_duer", "rho_d=0.1,rho_s=0.4,alpha_x=0.15,alpha_y=0.4"},
-      {"ward_gmd", "rho_d=0.3,rho_s=0.2,alpha_x=0.3,alpha_y=0.15"},
+      {"ward_gmd", "rho_d=0.05,rho_s=0.6,alpha_x=0.12,alpha_y=0.3"},
       {"ashikhmin_shirley", "rd=0.3,rs=0.1,nu=50,nv=10"},
   };
   const double angles[3] = {0.0, 45.0, 80.0};

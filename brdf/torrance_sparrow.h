@@ -292,7 +292,8 @@ class VGrooveModel {
       const double dens = std::exp(-t * t) * detail::TsSinRatio(m, t);
       double next = dens > 0 ? t - c / dens : 0.5 * (lo + hi);
       if (!(next > lo && next < hi)) next = 0.5 * (lo + hi);  // Newton left the bracket
-      if (std::abs(next - t) <= 1e-15 * std::max(1.0, t)) return next;
+      // Quadratic convergence: a step of 1e-9 leaves an error near 1e-18.
+      if (std::abs(next - t) <= 1e-9 * std::max(1.0, t)) return next;
       t = next;
     }
     return t;
