@@ -369,6 +369,21 @@ TEST(Lafortune, UniformCoefficientsDimTheLobeByCToTheN) {
   EXPECT_NEAR(e, 0.9 * std::pow(0.8, 5), 1e-12);
 }
 
+TEST(ClassicModels, ReciprocalOnesAreSymmetricBitForBit) {
+  std::mt19937_64 rng(9);
+  std::uniform_real_distribution<double> u(0, 1);
+  for (const char* spec : {"oren_nayar", "oren_nayar_fujii", "phong", "blinn_phong", "lafortune"}) {
+    const Model m = Model::Parse(spec);
+    const auto b = m.Make<double>();
+    for (int k = 0; k < 300; ++k) {
+      std::vector<double> p = m.Info().Defaults();
+      if (std::string(spec) == "lafortune") p = Params(m, "cx=0.37,cy=-0.81,cz=0.53,n=7");
+      const Eigen::Vector3d wi = Dir(std::acos(u(rng)), 2 * kPi * u(rng)), wo = Dir(std::acos(u(rng)), 2 * kPi * u(rng));
+      ASSERT_TRUE((b->Eval(p.data(), wi, wo) == b->Eval(p.data(), wo, wi)).all()) << spec;
+    }
+  }
+}
+
 TEST(Lafortune, PaperParameterisationMapsAsDocumented) {
   // Paper lobe [C o wi . wo]^n with C = (-0.9, -0.9, 0.7), n = 3:
   // c = C / 0.9, rho = 2 pi / 5 * 0.9^3.

@@ -65,7 +65,8 @@ struct Lafortune {
   Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const {
     if (!SameUpperHemisphere(wi, wo)) return Rgb<T>::Constant(T(0));
     const T& n = p[6];
-    const T base = p[3] * wi.x() * wo.x() + p[4] * wi.y() * wo.y() + p[5] * wi.z() * wo.z();
+    // wi_k wo_k first: the products commute exactly, so f(wi, wo) == f(wo, wi) bit for bit.
+    const T base = p[3] * (wi.x() * wo.x()) + p[4] * (wi.y() * wo.y()) + p[5] * (wi.z() * wo.z());
     const T lobe = (n + T(2)) * T(0.5 * kInvPi) * PowLobe(base, n);
     return Rgb<T>(p[0], p[1], p[2]) * lobe;
   }
