@@ -25,9 +25,15 @@
 //    series for small sin^2; it is exactly 1 with finite derivatives at h = n.
 //  - The 1 / ((h.k) max(cos_i, cos_o)) factor is the paper's heuristic for
 //    masking and the half-vector Jacobian; it is reciprocal but not derived
-//    from a surface, and the model is not energy-conserving by construction
-//    (the specular albedo depends on the exponents; it is about Rs for large
-//    isotropic exponents at normal incidence, the paper's design property).
+//    from a surface. With dwi = 4 (h.k) dwh the specular albedo is
+//    int p_h(h) F cos_i / max(cos_i, cos_o) dwh <= int p_h dwh = 1, so the
+//    specular term alone never exceeds 1. The paper also claims the sum with
+//    the diffuse term conserves energy; that is not proven here (it needs
+//    int p_h (1 - k.h)^5 cos_i / max(...) <= (1 - cos_o / 2)^5), so the flag
+//    stays false; the tests find the total below 1 in every case tried.
+//  - With Rs = 1 and nu = nv = n the albedo at normal incidence is
+//    2 (n+1)/(n+3) (1 - 2^(-(n+3)/2)) - (1 - 2^(-(n+1)/2)) = 1 - 4/(n+3) + ...
+//    (close to 1 for large exponents only); at grazing it tends to 1/2.
 //  - The constant 28/23 normalises the angular factor: int (1 - (1 - cos/2)^5)
 //    cos dw = 23 pi / 28, so the diffuse albedo is exactly
 //    Rd (1 - Rs) (1 - (1 - cos_o / 2)^5), at most 31/32 Rd (1 - Rs).
@@ -62,7 +68,7 @@ struct AshikhminShirley {
     info.params.push_back({"nu", 1e-3, 1e8, 100.0, false, "Phong exponent along x", S::kLog});
     info.params.push_back({"nv", 1e-3, 1e8, 100.0, false, "Phong exponent along y", S::kLog});
     info.reciprocal = true;
-    info.energy_conserving = false;  // heuristic 1/((h.k) max(cos)) term, see the header
+    info.energy_conserving = false;  // specular part bounded; the sum with the diffuse term unproven (header)
     return info;
   }
 
