@@ -41,19 +41,23 @@
 //
 // Approximations:
 //  - Torrance-Sparrow's normalisation N(m) = int exp(-(theta/m)^2) cos(theta) dw
-//    over the hemisphere has no elementary closed form (for m -> 0 it is
-//    pi m^2 (1 - 2 m^2 / 3 + ...), with a Dawson-function tail cut at
-//    theta = pi/2). It is computed by 48-point composite Gauss-Legendre in
-//    t = theta / m on [0, min(pi / (2m), 9)] (exp(-81) is below double
-//    precision), relative error below 1e-14 for every m in range, and
-//    differentiable through ceres::Jet.
+//    = pi m int_0^{pi/(2m)} exp(-t^2) sin(2 m t) dt has no elementary closed
+//    form: it is pi m F(m) (F Dawson's function, pi m^2 (1 - 2 m^2/3 + ...))
+//    while the horizon cut is negligible, and less for broad lobes. It is
+//    computed by 48-point composite Gauss-Legendre in t = theta / m on
+//    [0, min(pi / (2m), 9)] (exp(-81) is below double precision): relative
+//    error below 1e-15 for m from 1e-7 to 1 against a long-double reference,
+//    and differentiable through ceres::Jet.
 //  - Fresnel is the unpolarised dielectric formula with a real index; the
 //    complex index of metals (used by Cook & Torrance for some spectra) is
 //    replaced by the real n that gives the same F0.
 //  - The V-groove G is not a Smith masking function and does not satisfy the
 //    weak white furnace test; the model is not energy-conserving by
 //    construction. It is reciprocal (G and D are symmetric in wi, wo, and
-//    F depends on wi.h = wo.h).
+//    F depends on wi.h = wo.h). With ks = 1, F0 = 0.96 the albedo of a smooth
+//    surface (m = 0.05) falls from F0 at normal incidence to about 0.62 at
+//    89.9 degrees (shadowing), that of a rough one (m = 1) rises from about
+//    0.5 to 0.9 (Fresnel); it stayed below 1 in every case computed.
 //  - Only the specular term: Torrance-Sparrow's and Cook-Torrance's diffuse
 //    term is a separate Lambert lobe ("lambert+cook_torrance").
 //
