@@ -1,15 +1,14 @@
 // brdfkit fit: least-squares fit of a model to tabulated reflectance.
-#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
 #include <iostream>
-#include <sstream>
 
 #include "brdf/atomic_file.h"
 #include "cli/common.h"
 #include "data_synth/instrument.h"
 #include "fit/fit.h"
+#include "validate/plot.h"
 
 namespace brdfkit::cli {
 namespace {
@@ -95,45 +94,16 @@ void ParseLoss(const std::string& text, fit::Options& o) {
   }
 }
 
-// Metric RMSE against seconds, log-log, as a standalone SVG.
+// Metric RMSE against seconds (initialisation included), log-log.
 void WriteTracePlot(const std::string& path, const fit::Result& r) {
-  std::vector<double> x, y;
+  validate::Series s{fit::MetricName(r.metric) + " rmse", {}, {}};
   for (const fit::TracePoint& t : r.trace)
-    if (t.seconds > 0 && t.rmse > 0) {
-      x.push_back(std::log10(t.seconds));
-      y.push_back(std::log10(t.rmse));
+    if (t.seconds > 0 && t.rmse > 0) {  // log axes
+      s.x.push_back(t.seconds);
+      s.y.push_back(t.rmse);
     }
-  const double W = 640, H = 420, L = 80, R = 20, T = 40, B = 60;
-  double x0 = 0, x1 = 1, y0 = 0, y1 = 1;
-  if (!x.empty()) {
-    x0 = std::floor(*std::min_element(x.begin(), x.end()));
-    x1 = std::ceil(*std::max_element(x.begin(), x.end()));
-    y0 = std::floor(*std::min_element(y.begin(), y.end()));
-    y1 = std::ceil(*std::max_element(y.begin(), y.end()));
-    if (x1 <= x0) x1 = x0 + 1;
-    if (y1 <= y0) y1 = y0 + 1;
-  }
-  auto px = [&](double v) { return L + (v - x0) / (x1 - x0) * (W - L - R); };
-  auto py = [&](double v) { return H - B - (v - y0) / (y1 - y0) * (H - T - B); };
-  std::ostringstream s;
-  s << "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"" << W << "\" height=\"" << H
-    << "\" font-family=\"sans-serif\" font-size=\"12\">\n<rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n";
-  s << "<text x=\"" << W / 2 << "\" y=\"24\" text-anchor=\"middle\">fit " << r.model.Spec() << ": "
-    << fit::MetricName(r.metric) << " rmse against run time</text>\n";
-  for (double e = x0; e <= x1; e += 1)
-    s << "<line x1=\"" << px(e) << "\" y1=\"" << py(y0) << "\" x2=\"" << px(e) << "\" y2=\"" << py(y1)
-      << "\" stroke=\"#ddd\"/><text x=\"" << px(e) << "\" y=\"" << H - B + 16
-      << "\" text-anchor=\"middle\">1e" << e << "</text>\n";
-  for (double e = y0; e <= y1; e += 1)
-    s << "<line x1=\"" << px(x0) << "\" y1=\"" << py(e) << "\" x2=\"" << px(x1) << "\" y2=\"" << py(e)
-      << "\" stroke=\"#ddd\"/><text x=\"" << L - 6 << "\" y=\"" << py(e) + 4
-      << "\" text-anchor=\"end\">1e" << e << "</text>\n";
-  s << "<text x=\"" << (L + W - R) / 2 << "\" y=\"" << H - 20 << "\" text-anchor=\"middle\">seconds</text>\n";
-  s << "<text x=\"20\" y=\"" << (T + H - B) / 2 << "\" transform=\"rotate(-90 20 " << (T + H - B) / 2
-    << ")\" text-anchor=\"middle\">rmse</text>\n<polyline fill=\"none\" stroke=\"#1f77b4\" stroke-width=\"2\" points=\"";
-  for (std::size_t k = 0; k < x.size(); ++k) s << px(x[k]) << "," << py(y[k]) << " ";
-  s << "\"/>\n</svg>\n";
-  WriteFileAtomic(path, s.str());
+  validate::LinePlot(path, "fit " + r.model.Spec() + ": error against run time", "seconds",
+                     fit::MetricName(r.metric) + " rmse", {s}, true, true);
 }
 
 }  // namespace
