@@ -5,6 +5,7 @@
 #include <iostream>
 
 #include "cli/common.h"
+#include "data_synth/camera.h"
 #include "data_synth/outputs.h"
 
 namespace brdfkit::cli {
@@ -31,7 +32,27 @@ void RegisterSynth(CLI::App& app) {
                 "print the instrument (or camera rig) description as JSON and exit");
   cmd->add_flag("--quiet,-q", quiet, "no summary on stderr");
   cmd->callback([] {
-    if (!camera_file.empty()) throw UsageError("synth: --camera is not available in this build");
+    if (!camera_file.empty()) {
+      const synth::CameraRig rig = synth::LoadCameraRig(camera_file);
+      if (print_instrument) {
+        std::cout << synth::CameraRigToJson(rig).dump(2) << "\n";
+        return;
+      }
+      if (margs.model.empty()) throw UsageError("synth: --model is required");
+      if (outs.size() != 1) throw UsageError("synth --camera: give one --out PREFIX for the raw images");
+      const LoadedModel m = LoadModel(margs);
+      const synth::CameraCapture cap = synth::RenderCamera(rig, m.model, m.params, seed);
+      const std::vector<std::string> files =
+          synth::WriteCameraCapture(outs[0], rig, cap, m.model.Spec(), m.params, seed);
+      if (!quiet)
+        for (const std::string& f : files) std::fprintf(stderr, "wrote %s\n", f.c_str());
+      if (!reduce_out.empty()) {
+        const synth::BrdfTable t = synth::ReduceCamera(rig, files);
+        synth::WriteTableCsv(reduce_out, t);
+        if (!quiet) std::fprintf(stderr, "wrote %s (%zu BRDF samples)\n", reduce_out.c_str(), t.rows.size());
+      }
+      return;
+    }
     const synth::Instrument inst =
         instrument_file.empty() ? synth::DefaultInstrument() : synth::LoadInstrument(instrument_file);
     if (print_instrument) {

@@ -418,7 +418,7 @@ BrdfTable ReduceCamera(const CameraRig& rig, const std::vector<std::string>& raw
   }
 
   BrdfTable table;
-  table.has_sigma = true;
+  table.has_sigma = m.AnyNoise();
   for (int y = 0; y < h; ++y)
     for (int x = 0; x < w; ++x) {
       const PixelGeometry& g = geom[std::size_t(y) * w + x];

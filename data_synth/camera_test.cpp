@@ -89,6 +89,7 @@ TEST(Camera, NoiselessRoundTripRecoversTheBrdf) {
   ASSERT_EQ(files.size(), 1u);
   const BrdfTable t = ReduceCamera(rig, files);
   EXPECT_GT(t.rows.size(), 1000u);  // the sphere covers about 50 x 50 pixels
+  EXPECT_FALSE(t.has_sigma);
   const auto bxdf = model.Make<double>();
   for (const BrdfSample& s : t.rows) {
     const Rgb<double> f =

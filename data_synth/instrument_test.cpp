@@ -223,7 +223,7 @@ TEST(Outputs, MerlPlanWritesAReadableMerlFileAndAnImage) {
 }
 
 int RunCli(const std::string& args, std::string* err = nullptr) {
-  const std::string log = (fs::temp_directory_path() / ("brdfkit_synth_cli_" + std::to_string(::getpid()))).string();
+  const std::string log = (fs::temp_directory_path() / ("brdfkit_synth_cli_log_" + std::to_string(::getpid()) + ".txt")).string();
   const int rc = std::system((std::string(BRDFKIT_EXE) + " " + args + " 2>" + log).c_str());
   if (err) *err = Slurp(log);
   return WEXITSTATUS(rc);
@@ -235,6 +235,7 @@ TEST(SynthCli, WritesTableAndSidecarAndRejectsBadInput) {
   ASSERT_EQ(RunCli("synth -m lambert -p albedo=0.5 --seed 3 -q --out " + (d / "a.csv").string(), &err), 0) << err;
   const BrdfTable t = ReadTableCsv((d / "a.csv").string());
   ASSERT_FALSE(t.rows.empty());
+  EXPECT_FALSE(t.has_sigma);  // noiseless
   for (const BrdfSample& s : t.rows) EXPECT_NEAR(s.f[0], 0.5 / kPi, 1e-13);
   EXPECT_EQ(json::parse(Slurp(d / "a.csv.json"))["seed"], 3);
 

@@ -20,7 +20,9 @@ namespace brdfkit::synth {
 
 BrdfTable ToTable(const SynthResult& result) {
   BrdfTable t;
-  t.has_sigma = true;
+  // Noiseless data carry no sigma columns: a zero uncertainty is not a
+  // usable fit weight, and readers treat a missing column as unweighted.
+  t.has_sigma = result.noisy;
   for (std::size_t n = 0; n < result.samples.size(); ++n) {
     const SynthSample& s = result.samples[n];
     if (!s.valid) {

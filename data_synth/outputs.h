@@ -1,5 +1,6 @@
 // Files written by a synthetic measurement, all atomically:
-//  - .csv    the BRDF table (table_io.h), measured pairs only;
+//  - .csv    the BRDF table (table_io.h), measured pairs only, with sigma
+//            columns when the sensor noise model is on;
 //  - .binary the MERL file (brdf/merl.h), MERL plans only; cells not
 //            measured (below the horizon, or skipped by a stride) are -1;
 //  - .exr    an OpenEXR float32 image of the data for grid plans, channels

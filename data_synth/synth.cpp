@@ -237,6 +237,7 @@ SynthResult Synthesize(const Instrument& inst, const Model& model, const std::ve
   const Imperfections& m = inst.imperfections;
   const SensorModel sensor(m, inst.detector.exposure_time);
   const bool noisy = m.AnyNoise();
+  result.noisy = noisy;
   // Photo-electron rate per unit of aperture integral: responsivity times
   // source radiance (or beam irradiance) times sample area.
   const Eigen::Array3d rate_scale = inst.detector.responsivity * inst.source.RadianceScale() * inst.sample.area;

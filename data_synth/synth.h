@@ -56,6 +56,7 @@ struct SynthResult {
   ExpandedPlan plan;
   std::vector<SynthSample> samples;  // parallel to plan.pairs
   SynthReport report;
+  bool noisy = false;  // the sensor noise model was on (sigma is meaningful)
 };
 
 // Chooses the quadrature order (automatic unless settings fix one): the
