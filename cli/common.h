@@ -47,5 +47,7 @@ void RegisterRun(CLI::App& app);
 void RegisterFit(CLI::App& app);  LoadedModel LoadFitModel(const std::string& path);  // cmd_fit.cpp
 void RegisterSynth(CLI::App& app);
 void RegisterConvergence(CLI::App& app);  // cmd_convergence.cpp
+void RegisterCheck(CLI::App& app);   // cmd_check.cpp
+void RegisterAlbedo(CLI::App& app);  // cmd_albedo.cpp
 
 }  // namespace brdfkit::cli

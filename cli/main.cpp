@@ -14,6 +14,8 @@ int main(int argc, char** argv) {
   brdfkit::cli::RegisterFit(app);
   brdfkit::cli::RegisterSynth(app);
   brdfkit::cli::RegisterConvergence(app);
+  brdfkit::cli::RegisterCheck(app);
+  brdfkit::cli::RegisterAlbedo(app);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -1,0 +1,74 @@
+// Albedo table speed: a 32 x 32 GGX table (mu uniform on [0, 1], alpha
+// uniform in sqrt on [1e-3, 1]) plus E_avg, against importance-sampled Monte
+// Carlo at the same accuracy. The Monte Carlo row reports the samples per
+// cell it needs for a standard error equal to the table's largest error
+// estimate, and the seconds that costs, measured on a sample of cells.
+#include <benchmark/benchmark.h>
+
+#include <cmath>
+#include <random>
+
+#include "brdf/model.h"
+#include "brdf/params.h"
+#include "validate/albedo.h"
+#include "validate/integrators.h"
+
+namespace {
+
+using namespace brdfkit;
+
+const Model& Ggx() {
+  static const Model m = Model::Parse("ggx");
+  return m;
+}
+
+void BM_AlbedoTableGgx32x32(benchmark::State& state) {
+  const Model& m = Ggx();
+  validate::AlbedoTableRequest req;
+  req.axes = validate::ParseAxes("mu:32,alpha:32:0.001:1");
+  const std::vector<double> p = ParseParams(m.Info(), "f0=1");
+  double max_error = 0;
+  for (auto _ : state) {
+    const validate::AlbedoTable t = validate::BuildAlbedoTable(m, p, req);
+    max_error = t.max_error;
+    benchmark::DoNotOptimize(t.E.data());
+  }
+  state.counters["max_error"] = max_error;
+}
+BENCHMARK(BM_AlbedoTableGgx32x32)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(2);
+
+// Importance-sampled Monte Carlo at a target standard error: measure the
+// per-sample variance and speed on a few cells, then scale to 1024 cells.
+void BM_MonteCarloEquivalent(benchmark::State& state) {
+  const Model& m = Ggx();
+  const auto b = m.Make<double>();
+  const double target = 1e-6;  // the table's accuracy requirement (its error estimates are below)
+  double seconds_per_table = 0, samples_per_cell = 0;
+  for (auto _ : state) {
+    double var_sum = 0, time_per_sample = 0;
+    int cells = 0;
+    for (double alpha : {0.001, 0.1, 0.5, 1.0})
+      for (double mu : {0.05, 0.5, 1.0}) {
+        const std::vector<double> p = ParseParams(m.Info(), "f0=1,alpha=" + FormatDouble(alpha));
+        const Eigen::Vector3d wo(std::sqrt(1 - mu * mu), 0, mu);
+        validate::IntegrateOptions o;
+        o.budget = 1 << 16;
+        const validate::Estimate e = validate::DirectionalAlbedo(*b, p.data(), wo, validate::Method::kImportance, o);
+        // The estimate's error is 3 standard errors: per-sample variance n (err / 3)^2.
+        const double se = e.error[0] / 3;
+        var_sum += double(e.evals) * se * se;
+        time_per_sample += e.seconds / double(e.evals);
+        ++cells;
+      }
+    const double var = var_sum / cells;
+    samples_per_cell = var / (target * target);
+    seconds_per_table = samples_per_cell * (time_per_sample / cells) * 1024;
+  }
+  state.counters["samples_per_cell"] = samples_per_cell;
+  state.counters["seconds_per_32x32_table"] = seconds_per_table;
+}
+BENCHMARK(BM_MonteCarloEquivalent)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
+
+}  // namespace
+
+BENCHMARK_MAIN();

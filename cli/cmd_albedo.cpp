@@ -1,0 +1,90 @@
+#include <cctype>
+#include <cstdio>
+#include <iostream>
+
+#include "cli/common.h"
+#include "validate/albedo.h"
+
+namespace brdfkit::cli {
+
+void RegisterAlbedo(CLI::App& app) {
+  auto* cmd = app.add_subcommand(
+      "albedo",
+      "directional albedo tables E(mu, p) for renderers, E_avg(p) = 2 int E mu dmu, and the Kulla-Conty "
+      "multiple-scattering compensation terms. The entry at mu = 0 holds the limit mu -> 0.");
+  static ModelArgs margs;
+  static std::string axes, nodes = "uniform", csv, exr, header, prefix;
+  static double tolerance = 1e-8;
+  static int channel = 0;
+  static bool json = false;
+  AddModelOptions(cmd, margs);
+  cmd->add_option("--axes", axes,
+                  "mu:N then one or two parameters, name:count[:lower:upper], e.g. mu:32,alpha:32 or "
+                  "mu:32,alpha:32,f0:8 (default range: the parameter's bounds)")
+      ->required();
+  cmd->add_option("--nodes", nodes,
+                  "uniform: mu uniform on [0, 1], roughness (log-scale parameters) uniform in sqrt(p), others "
+                  "uniform, ends included; gauss: Gauss-Legendre nodes in the same coordinates (ends excluded)")
+      ->check(CLI::IsMember({"uniform", "gauss"}));
+  cmd->add_option("--csv", csv,
+                  "write FILE as mu,<p>[,<p2>],E and beside it <stem>_avg.csv (<p>[,<p2>],E_avg), <stem>_ms.csv "
+                  "(E_avg, ms_norm = 1/(pi (1 - E_avg)) [, F_avg, E1_avg, F_ms]) and with an f0 axis <stem>_f1.csv "
+                  "(the F = 1 table)");
+  cmd->add_option("--exr", exr, "write a multi-part float32 OpenEXR (parts E, E_avg, ms_norm[, E1, E1_avg, F_ms]; "
+                                "axes and node values as header attributes brdfkit.*)");
+  cmd->add_option("--header", header, "write a C/C++ header with float arrays and node arrays");
+  cmd->add_option("--header-prefix", prefix, "symbol prefix in the header (default <model>_albedo)");
+  cmd->add_option("--tolerance", tolerance, "absolute error target per entry (default 1e-8)")
+      ->check(CLI::Range(1e-12, 1e-2));
+  cmd->add_option("--channel", channel, "RGB channel tabulated (0, 1, 2)")->check(CLI::Range(0, 2));
+  cmd->add_flag("--json", json, "print the tables as JSON on stdout");
+  cmd->callback([] {
+    const LoadedModel m = LoadModel(margs);
+    validate::AlbedoTableRequest req;
+    req.axes = validate::ParseAxes(axes);
+    req.rule = nodes == "gauss" ? validate::NodeRule::kGauss : validate::NodeRule::kUniform;
+    req.quadrature.abs_tolerance = tolerance;
+    req.channel = channel;
+    const validate::AlbedoTable t = validate::BuildAlbedoTable(m.model, m.params, req);
+    if (!csv.empty()) validate::WriteAlbedoCsv(t, csv);
+    if (!exr.empty()) validate::WriteAlbedoExr(t, exr);
+    if (!header.empty()) {
+      std::string p = prefix;
+      if (p.empty()) {
+        for (char c : m.model.Spec()) p += std::isalnum(static_cast<unsigned char>(c)) ? c : '_';
+        p += "_albedo";
+      }
+      validate::WriteAlbedoHeader(t, header, p);
+    }
+    if (json) {
+      nlohmann::json j = {{"model", t.model}, {"params", t.params_text}, {"mu", t.mu.nodes},
+                          {"E", t.E},         {"E_avg", t.E_avg},        {"ms_norm", t.ms_norm},
+                          {"max_error", t.max_error}, {"limit_error", t.limit_error}, {"seconds", t.seconds}};
+      nlohmann::json axes_j = nlohmann::json::array();
+      for (const auto& a : t.params) axes_j.push_back({{"name", a.name}, {"nodes", a.nodes}});
+      j["axes"] = axes_j;
+      if (t.f0_axis >= 0) {
+        j["F_avg"] = t.F_avg;
+        j["E1"] = t.E1;
+        j["E1_avg"] = t.E1_avg;
+        j["F_ms"] = t.F_ms;
+      }
+      std::cout << j.dump() << "\n";
+    } else if (csv.empty() && exr.empty() && header.empty()) {
+      std::string names = t.params[0].name;
+      if (t.params.size() > 1) names.append(",").append(t.params[1].name);
+      std::printf("mu,%s,E\n", names.c_str());
+      for (std::size_t i1 = 0; i1 < t.n1(); ++i1)
+        for (std::size_t i2 = 0; i2 < t.n2(); ++i2)
+          for (std::size_t k = 0; k < t.n_mu(); ++k) {
+            std::printf("%s,%s", FormatDouble(t.mu.nodes[k]).c_str(), FormatDouble(t.params[0].nodes[i1]).c_str());
+            if (t.params.size() > 1) std::printf(",%s", FormatDouble(t.params[1].nodes[i2]).c_str());
+            std::printf(",%s\n", FormatDouble(t.at(k, i1, i2)).c_str());
+          }
+    }
+    std::fprintf(stderr, "albedo: %zu entries and %zu averages in %.2f s; largest error estimate %.2g, grazing limit %.2g\n",
+                 t.E.size(), t.E_avg.size(), t.seconds, t.max_error, t.limit_error);
+  });
+}
+
+}  // namespace brdfkit::cli
