@@ -116,8 +116,13 @@ inline std::string FormatParams(const ModelInfo& info, const std::vector<double>
   std::string out;
   std::size_t k = 0;
   for (const ParamInfo& p : info.params) {
-    out += (out.empty() ? "" : ",") + p.name + "=";
-    for (int c = 0; c < (p.colour ? 3 : 1); ++c, ++k) out += (c ? ":" : "") + FormatDouble(packed[k]);
+    if (!out.empty()) out += ',';
+    out += p.name;
+    out += '=';
+    for (int c = 0; c < (p.colour ? 3 : 1); ++c, ++k) {
+      if (c) out += ':';
+      out += FormatDouble(packed[k]);
+    }
   }
   return out;
 }
