@@ -96,7 +96,7 @@ struct Options {
   LinearSolver solver = LinearSolver::kDenseQr;
   int num_threads = 2;
   int max_iterations = 200;
-  double function_tolerance = 1e-14;
+  double function_tolerance = 1e-10;
   double gradient_tolerance = 1e-16;
   double parameter_tolerance = 1e-12;
   std::size_t chunk = 256;  // samples per residual block
