@@ -59,13 +59,15 @@ std::vector<PlannedPair> ReadDirectionList(const std::string& path, bool degrees
   return out;
 }
 
-// Angle between the cone axis and the true normal plus the cone radius
-// reaching the horizon: the integrand has a kink inside the cone.
-bool CrossesHorizon(const Eigen::Vector3d& w, double radius, const Eigen::Matrix3d& r) {
+// A cone within 3 radii of the horizon: the cosines (and Smith masking)
+// vanish there, so the integrand's Taylor radius is the distance to the
+// horizon and the rule converges slowly, or not at all across the kink.
+// Such pairs do not steer the order choice; their count is reported.
+bool NearHorizon(const Eigen::Vector3d& w, double radius, const Eigen::Matrix3d& r) {
   if (radius == 0) return false;
   const Eigen::Vector3d ws = r * w;
   const double theta = std::atan2(std::hypot(ws.x(), ws.y()), ws.z());
-  return theta + radius >= kPi / 2;
+  return theta + 3 * radius >= kPi / 2;
 }
 
 double SourceRadius(const Instrument& inst) {
@@ -168,7 +170,7 @@ OrderChoice ChooseApertureOrder(const Instrument& inst, const Bxdf<double>& bxdf
     const PlannedPair& p = plan.pairs[n];
     const Eigen::Vector3d wi = DirectionFromAngles(p.theta_i, p.phi_i), wo = DirectionFromAngles(p.theta_o, p.phi_o);
     if (!(wi.z() > 0 && wo.z() > 0)) continue;
-    if (CrossesHorizon(wi, rs, r) || CrossesHorizon(wo, rd, r)) {
+    if (NearHorizon(wi, rs, r) || NearHorizon(wo, rd, r)) {
       ++out.horizon_crossing;
       continue;
     }

@@ -47,7 +47,7 @@ struct SynthReport {
   int order = 1;                    // aperture quadrature order used
   double quadrature_error = 0;      // estimated relative error (max over the checked pairs)
   std::size_t checked_pairs = 0;    // pairs used to choose the order and estimate its error
-  std::size_t horizon_crossing = 0; // pairs whose cones cross the horizon (error not controlled there)
+  std::size_t horizon_crossing = 0; // pairs with a cone within 3 radii of the horizon (error not controlled)
   std::size_t measured = 0, not_measured = 0, saturated = 0;
   double seconds = 0;
 };
@@ -62,7 +62,7 @@ struct SynthResult {
 // Chooses the quadrature order (automatic unless settings fix one): the
 // smallest n whose result differs from order n + 1 by less than the
 // tolerance (relative, max over channels) on up to `max_checked` pairs spread
-// through the plan, horizon-crossing pairs excluded. Returns the order and
+// through the plan, pairs with a cone within 3 radii of the horizon excluded. Returns the order and
 // the estimated relative error |I_n - I_{n+1}| / |I_{n+1}|.
 struct OrderChoice {
   int order = 1;
