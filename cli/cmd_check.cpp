@@ -46,6 +46,7 @@ nlohmann::json ResultJson(const validate::CheckResult& r) {
   if (!r.sampling_checked) {
     j["pdf_integral"] = nullptr;
     j["chi2_p_value"] = nullptr;
+    if (!r.sampling_note.empty()) j["sampling_note"] = r.sampling_note;
   }
   if (r.microfacet) {
     j["d_normalisation"] = r.d_normalisation;
@@ -68,6 +69,8 @@ void PrintText(const validate::CheckResult& r) {
   if (r.sampling_checked)
     std::printf("  sampling     %s pdf integral %.6g (valid fraction %.6g), chi-square p %.3g (Sidak over %d directions)\n",
                 status("sampling"), r.pdf_integral, r.valid_fraction, r.chi2_p_value, r.sampling_directions);
+  else if (!r.sampling_note.empty())
+    std::printf("  sampling     --   %s\n", r.sampling_note.c_str());
   if (r.microfacet) {
     std::printf("  microfacet   %s int D cos = %.9f", status("microfacet"), r.d_normalisation);
     if (r.has_smith_g1) std::printf(", weak white furnace in [%.9f, %.9f]", r.furnace_min, r.furnace_max);

@@ -15,7 +15,8 @@
 //    5 standard errors + 2e-3, quadrature of narrow lobes) and not above 1 +
 //    2e-3; chi-square goodness of fit at wo = 0, 30, 60, 80 degrees (and a
 //    rotated azimuth for anisotropic models), Sidak-corrected family p-value
-//    1 - (1 - p_min)^m >= 0.01.
+//    1 - (1 - p_min)^m >= 0.01. Skipped (and said so) for lobes narrower than
+//    kMinSampledLobeWidth.
 //  - microfacet models: int D(m) cos(theta_m) dm = 1 and, with a Smith G1,
 //    the weak white furnace int D G1(wo, m) max(0, wo.m) / cos(theta_o) dm = 1
 //    (Heitz 2014 eq. 14 and 18), both within 1e-6 + their error estimates.
@@ -28,6 +29,10 @@
 #include "brdf/model.h"
 
 namespace brdfkit::validate {
+
+// Lobes narrower than this (radians, validate::LobeWidth) are not sampled
+// against the chi-square bins, which cannot resolve them.
+inline constexpr double kMinSampledLobeWidth = 0.03;
 
 struct CheckOptions {
   int random_pairs = 4000;
@@ -63,6 +68,7 @@ struct CheckResult {
   std::int64_t values_checked = 0;
   // Sampling.
   bool sampling_checked = false;
+  std::string sampling_note;  // why sampling was not checked
   double pdf_integral = 0;  // the one farthest from the valid fraction
   double valid_fraction = 0;
   double chi2_p_value = 1;  // Sidak-corrected family p-value
