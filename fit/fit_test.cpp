@@ -107,8 +107,8 @@ INSTANTIATE_TEST_SUITE_P(
                       Case{"lambert+ggx", "lambert.albedo=0.6:0.5:0.4,ggx.alpha=0.02,ggx.f0=0.05:0.04:0.03"},
                       Case{"cook_torrance", "ks=0.8:0.6:0.4,m=0.25,eta=1.8:2.2:3"},
                       Case{"ward", "rho_d=0.4:0.3:0.2,rho_s=0.08:0.06:0.05,alpha_x=0.12,alpha_y=0.3"}),
-    [](const ::testing::TestParamInfo<Case>& info) {
-      std::string s = std::string(info.param.model) + "_" + std::to_string(info.index);
+    [](const ::testing::TestParamInfo<Case>& param_info) {
+      std::string s = std::string(param_info.param.model) + "_" + std::to_string(param_info.index);
       for (char& c : s)
         if (!std::isalnum(static_cast<unsigned char>(c))) c = '_';
       return s;
@@ -126,7 +126,9 @@ TEST(Fit, EveryMetricRecoversNoiselessTruth) {
     const Result r = Fit(m, d, o);
     SCOPED_TRACE(MetricName(metric));
     ExpectRecovered(r, truth, 1e-6);
-    if (metric == Metric::kCosine) EXPECT_GT(r.dropped_angle, 0u);
+    if (metric == Metric::kCosine) {
+      EXPECT_GT(r.dropped_angle, 0u);
+    }
     ASSERT_FALSE(r.trace.empty());
     EXPECT_LE(r.trace.back().rmse, r.trace.front().rmse);
   }

@@ -190,7 +190,9 @@ TEST_P(ModelProperties, JetDerivativesMatchFiniteDifferences) {
     }
   }
   EXPECT_EQ(failures, 0);
-  if (n > 0) EXPECT_LE(skipped, compared / 10 + 3) << "too many non-smooth points";
+  if (n > 0) {
+    EXPECT_LE(skipped, compared / 10 + 3) << "too many non-smooth points";
+  }
 }
 
 TEST_P(ModelProperties, SamplingMatchesPdf) {
@@ -238,7 +240,9 @@ TEST_P(ModelProperties, ParameterTableIsConsistent) {
     EXPECT_LE(q.lower, q.default_value) << q.name;
     EXPECT_LE(q.default_value, q.upper) << q.name;
     EXPECT_LT(q.lower, q.upper) << q.name;
-    if (q.scale == ParamInfo::Scale::kLog) EXPECT_GT(q.lower, 0) << q.name << " is log-scaled";
+    if (q.scale == ParamInfo::Scale::kLog) {
+      EXPECT_GT(q.lower, 0) << q.name << " is log-scaled";
+    }
     EXPECT_FALSE(q.meaning.empty()) << q.name;
   }
   EXPECT_FALSE(info_.summary.empty());
@@ -248,7 +252,7 @@ TEST_P(ModelProperties, ParameterTableIsConsistent) {
 }
 
 INSTANTIATE_TEST_SUITE_P(AllModels, ModelProperties, ::testing::ValuesIn(ModelNames()),
-                         [](const auto& info) { return info.param; });
+                         [](const auto& param_info) { return param_info.param; });
 
 // A sum of lobes is the sum of its lobes, with <lobe>.<param> names.
 TEST(SumOfLobes, EvaluatesToTheSumAndNamesParameters) {
