@@ -247,6 +247,26 @@ class Bxdf {
   virtual const MicrofacetView<T>* Microfacet() const { return nullptr; }
 };
 
+// Cosine-weighted importance sampling (pdf = cos theta_i / pi), shared by the
+// models whose lobe is diffuse or tabulated.
+struct CosineSampling {
+  template <typename T>
+  BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const {
+    BsdfSample<T> s;
+    if (wo.z() <= T(0)) return s;
+    s.wi = SampleCosineHemisphere<T>(u1, u2);
+    s.pdf = Pdf(p, wo, s.wi);
+    s.valid = s.pdf > T(0);
+    return s;
+  }
+
+  template <typename T>
+  T Pdf(const T*, const Vec3<T>& wo, const Vec3<T>& wi) const {
+    if (!SameUpperHemisphere(wi, wo)) return T(0);
+    return wi.z() * T(kInvPi);
+  }
+};
+
 // Luminance-like mean of a colour parameter, for lobe selection weights.
 inline double MeanRgb(const double* c) { return (c[0] + c[1] + c[2]) / 3.0; }
 

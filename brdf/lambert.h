@@ -12,7 +12,7 @@
 
 namespace brdfkit {
 
-struct Lambert {
+struct Lambert : CosineSampling {
   explicit Lambert(const Settings& = {}) {}
 
   static ModelInfo Info() {
@@ -29,22 +29,6 @@ struct Lambert {
   Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const {
     if (!SameUpperHemisphere(wi, wo)) return Rgb<T>::Constant(T(0));
     return Rgb<T>(p[0], p[1], p[2]) * T(kInvPi);
-  }
-
-  template <typename T>
-  BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const {
-    BsdfSample<T> s;
-    if (wo.z() <= T(0)) return s;
-    s.wi = SampleCosineHemisphere<T>(u1, u2);
-    s.pdf = Pdf(p, wo, s.wi);
-    s.valid = s.pdf > T(0);
-    return s;
-  }
-
-  template <typename T>
-  T Pdf(const T*, const Vec3<T>& wo, const Vec3<T>& wi) const {
-    if (!SameUpperHemisphere(wi, wo)) return T(0);
-    return wi.z() * T(kInvPi);
   }
 
   double SampleWeight(const double* p) const { return MeanRgb(p); }

@@ -403,7 +403,7 @@ class MerlTable {
 // the phi_d fold makes every lookup symmetric in wi and wo. Not energy
 // conserving by construction (measured data may exceed albedo 1 through
 // noise). Sampling is cosine-weighted (pdf = cos_theta_i / pi).
-class Merl {
+class Merl : public CosineSampling {
  public:
   explicit Merl(const Settings& settings) {
     const auto path = settings.find("path");
@@ -449,22 +449,6 @@ class Merl {
     const Eigen::Vector3d b(Value(wo.x()), Value(wo.y()), Value(wo.z()));
     const Rgb<double> f = table_->Lookup(a, b, trilinear_);
     return Rgb<T>(T(f[0]), T(f[1]), T(f[2]));
-  }
-
-  template <typename T>
-  BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const {
-    BsdfSample<T> s;
-    if (wo.z() <= T(0)) return s;
-    s.wi = SampleCosineHemisphere<T>(u1, u2);
-    s.pdf = Pdf(p, wo, s.wi);
-    s.valid = s.pdf > T(0);
-    return s;
-  }
-
-  template <typename T>
-  T Pdf(const T*, const Vec3<T>& wo, const Vec3<T>& wi) const {
-    if (!SameUpperHemisphere(wi, wo)) return T(0);
-    return wi.z() * T(kInvPi);
   }
 
   // Rough albedo, for choosing this lobe in a sum.

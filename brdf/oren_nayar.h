@@ -74,24 +74,8 @@ inline T OrenNayarAzimuthTerm(const Vec3<T>& wi, const Vec3<T>& wo) {
   return s / t;
 }
 
-// Shared by both variants: cosine-weighted sampling.
-struct CosineSampledDiffuse {
-  template <typename T>
-  BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const {
-    BsdfSample<T> s;
-    if (wo.z() <= T(0)) return s;
-    s.wi = SampleCosineHemisphere<T>(u1, u2);
-    s.pdf = Pdf(p, wo, s.wi);
-    s.valid = s.pdf > T(0);
-    return s;
-  }
-
-  template <typename T>
-  T Pdf(const T*, const Vec3<T>& wo, const Vec3<T>& wi) const {
-    if (!SameUpperHemisphere(wi, wo)) return T(0);
-    return wi.z() * T(kInvPi);
-  }
-
+// Shared by both variants: cosine-weighted sampling, albedo as lobe weight.
+struct CosineSampledDiffuse : CosineSampling {
   double SampleWeight(const double* p) const { return MeanRgb(p); }
 };
 
