@@ -20,8 +20,8 @@ namespace brdfkit::synth {
 
 BrdfTable ToTable(const SynthResult& result) {
   BrdfTable t;
-  // Noiseless data carry no sigma columns: a zero uncertainty is not a
-  // usable fit weight, and readers treat a missing column as unweighted.
+  // Noiseless data carry sigma = 0 in every row, which readers take as
+  // unweighted data.
   t.has_sigma = result.noisy;
   for (std::size_t n = 0; n < result.samples.size(); ++n) {
     const SynthSample& s = result.samples[n];

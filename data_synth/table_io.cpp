@@ -148,6 +148,8 @@ BrdfTable ReadTableCsv(const std::string& path) {
   table.has_sigma = sig_rgb || col[kS] >= 0;
   const std::size_t fields = header.size();
 
+  std::size_t zero_sigma_line = 0;  // first row whose sigma is 0 in every channel
+  bool positive_sigma = false;
   while (reader.Next(line, path, line_no + 1)) {
     ++line_no;
     const std::string_view t = Trim(line);
@@ -204,9 +206,25 @@ BrdfTable ReadTableCsv(const std::string& path) {
       if (std::abs(x) > 2 * kTwoPi)
         throw std::runtime_error(where() + kNames[c] + " = " + std::to_string(x) +
                                  " is not an azimuth in radians");
-    if (table.has_sigma && !(r.sigma > 0).all())
-      throw std::runtime_error(where() + "sigma must be positive (a zero uncertainty would give the sample infinite weight)");
+    if (table.has_sigma) {
+      if ((r.sigma == 0).all()) {
+        // All-zero uncertainties mark a noiseless table; mixed with positive
+        // ones they would give those samples infinite weight.
+        if (zero_sigma_line == 0) zero_sigma_line = line_no;
+      } else if (!(r.sigma > 0).all()) {
+        throw std::runtime_error(where() + "sigma must be positive, or 0 in every row of a noiseless table");
+      } else {
+        positive_sigma = true;
+      }
+    }
     table.rows.push_back(r);
+  }
+  if (zero_sigma_line > 0) {
+    if (positive_sigma)
+      throw std::runtime_error(path + ":" + std::to_string(zero_sigma_line) +
+                               ": sigma is 0 here but positive elsewhere (a zero uncertainty would give the sample "
+                               "infinite weight; 0 is allowed only in every row of a noiseless table)");
+    table.has_sigma = false;  // noiseless data: fitted unweighted
   }
   return table;
 }
@@ -214,9 +232,8 @@ BrdfTable ReadTableCsv(const std::string& path) {
 void WriteTableCsv(const std::string& path, const BrdfTable& table) {
   AtomicFile out(path, std::ios::out | std::ios::binary);
   std::ofstream& s = out.stream();
-  s << "theta_i,phi_i,theta_o,phi_o,f_r,f_g,f_b";
-  if (table.has_sigma) s << ",sigma_r,sigma_g,sigma_b";
-  s << "\n";
+  // Always the full header: a noiseless table carries sigma = 0.
+  s << "theta_i,phi_i,theta_o,phi_o,f_r,f_g,f_b,sigma_r,sigma_g,sigma_b\n";
   char buf[512];
   for (const BrdfSample& r : table.rows) {
     int n = std::snprintf(buf, sizeof buf, "%.17g,%.17g,%.17g,%.17g,%.17g,%.17g,%.17g", r.theta_i, r.phi_i,
@@ -225,6 +242,8 @@ void WriteTableCsv(const std::string& path, const BrdfTable& table) {
     if (table.has_sigma) {
       n = std::snprintf(buf, sizeof buf, ",%.17g,%.17g,%.17g", r.sigma[0], r.sigma[1], r.sigma[2]);
       s.write(buf, n);
+    } else {
+      s.write(",0,0,0", 6);
     }
     s.put('\n');
   }

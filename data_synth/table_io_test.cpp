@@ -128,7 +128,19 @@ TEST_F(TableIoTest, Errors) {
               {"few.csv:3", "expected 5 fields, found 4"});
   ExpectError(Write("many.csv", "theta_i,phi_i,theta_o,phi_o,f\n0,0,0,0,1,2\n"), {"many.csv:2", "found 6"});
   ExpectError(Write("deg.csv", "theta_i,phi_i,theta_o,phi_o,f\n45,0,30,0,1\n"), {"deg.csv:2", "radians"});
-  ExpectError(Write("sig0.csv", "theta_i,phi_i,theta_o,phi_o,f,sigma\n0,0,0,0,1,0\n"), {"sig0.csv:2", "sigma"});
+  ExpectError(Write("sig0.csv", "theta_i,phi_i,theta_o,phi_o,f,sigma\n0,0,0,0,1,0.1\n0,0,0,0,1,0\n"),
+              {"sig0.csv:3", "sigma is 0 here but positive elsewhere"});
+  ExpectError(Write("signeg.csv", "theta_i,phi_i,theta_o,phi_o,f,sigma\n0,0,0,0,1,-0.1\n"),
+              {"signeg.csv:2", "sigma must be positive"});
+}
+
+// A noiseless table carries sigma = 0 in every row: read as unweighted data.
+TEST_F(TableIoTest, AllZeroSigmaIsANoiselessTable) {
+  const BrdfTable t = ReadTableCsv(Write("noiseless.csv", "theta_i,phi_i,theta_o,phi_o,f_r,f_g,f_b,sigma_r,sigma_g,sigma_b\n"
+                                                          "0.1,0,0.2,3,0.5,0.25,0.125,0,0,0\n0.3,1,0.4,2,1,2,3,0,0,0\n"));
+  EXPECT_FALSE(t.has_sigma);
+  ASSERT_EQ(t.rows.size(), 2u);
+  EXPECT_EQ(t.rows[1].f[2], 3.0);
 }
 
 }  // namespace
