@@ -164,54 +164,37 @@ CheckResult CheckPlausibility(const Bxdf<double>& bxdf, const double* p, const C
   // Golden-section refinement in log(mu) between the grid neighbours of the
   // best node, then in phi for models that are not rotation invariant.
   const double golden = 0.5 * (std::sqrt(5.0) - 1);
-  {
-    double lo = std::log(mus[std::min(best_i + 1, mus.size() - 1)]), hi = std::log(mus[best_i > 0 ? best_i - 1 : 0]);
+  // Golden-section search for the maximum of at(x) on [lo, hi]; every
+  // evaluated point is offered to take().
+  const auto golden_max = [&](double lo, double hi, int steps, double min_width, const auto& at) {
     double x1 = hi - golden * (hi - lo), x2 = lo + golden * (hi - lo);
-    Sample s1 = albedo(std::exp(x1), best_phi), s2 = albedo(std::exp(x2), best_phi);
+    Sample s1 = at(x1), s2 = at(x2);
     take(s1);
     take(s2);
-    for (int it = 0; it < o.golden_steps && hi - lo > 1e-6; ++it) {
+    for (int it = 0; it < steps && hi - lo > min_width; ++it) {
       if (s1.value > s2.value) {
         hi = x2;
         x2 = x1;
         s2 = s1;
         x1 = hi - golden * (hi - lo);
-        s1 = albedo(std::exp(x1), best_phi);
+        s1 = at(x1);
         take(s1);
       } else {
         lo = x1;
         x1 = x2;
         s1 = s2;
         x2 = lo + golden * (hi - lo);
-        s2 = albedo(std::exp(x2), best_phi);
+        s2 = at(x2);
         take(s2);
       }
     }
-  }
+  };
+  golden_max(std::log(mus[std::min(best_i + 1, mus.size() - 1)]), std::log(mus[best_i > 0 ? best_i - 1 : 0]),
+             o.golden_steps, 1e-6, [&](double x) { return albedo(std::exp(x), best_phi); });
   if (!r.rotation_invariant) {
-    double lo = best.phi - kPi / 8, hi = best.phi + kPi / 8;
     const double mu = best.mu;
-    double x1 = hi - golden * (hi - lo), x2 = lo + golden * (hi - lo);
-    Sample s1 = albedo(mu, x1), s2 = albedo(mu, x2);
-    take(s1);
-    take(s2);
-    for (int it = 0; it < o.golden_steps / 2; ++it) {
-      if (s1.value > s2.value) {
-        hi = x2;
-        x2 = x1;
-        s2 = s1;
-        x1 = hi - golden * (hi - lo);
-        s1 = albedo(mu, x1);
-        take(s1);
-      } else {
-        lo = x1;
-        x1 = x2;
-        s1 = s2;
-        x2 = lo + golden * (hi - lo);
-        s2 = albedo(mu, x2);
-        take(s2);
-      }
-    }
+    golden_max(best.phi - kPi / 8, best.phi + kPi / 8, o.golden_steps / 2, 0.0,
+               [&](double x) { return albedo(mu, x); });
   }
   r.albedo_max = best.value;
   r.albedo_max_error = best.error;
