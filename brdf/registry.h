@@ -14,6 +14,7 @@
 #include "brdf/torrance_sparrow.h"
 #include "brdf/ward.h"
 #include "brdf/ashikhmin_shirley.h"
+#include "brdf/kajiya.h"
 #include "brdf/merl.h"
 
 namespace brdfkit {
@@ -39,6 +40,7 @@ using RegisteredModels = std::tuple<
     WardDuer,
     WardGmd,
     AshikhminShirley,
+    Kajiya,
     Merl>;
 
 }  // namespace brdfkit
