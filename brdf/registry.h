@@ -15,6 +15,7 @@
 #include "brdf/ward.h"
 #include "brdf/ashikhmin_shirley.h"
 #include "brdf/kajiya.h"
+#include "brdf/he.h"
 #include "brdf/merl.h"
 
 namespace brdfkit {
@@ -41,6 +42,7 @@ using RegisteredModels = std::tuple<
     WardGmd,
     AshikhminShirley,
     Kajiya,
+    He,
     Merl>;
 
 }  // namespace brdfkit
