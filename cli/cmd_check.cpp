@@ -4,6 +4,7 @@
 #include <sstream>
 
 #include "cli/common.h"
+#include "cli/tasks.h"
 #include "validate/check.h"
 
 namespace brdfkit::cli {
@@ -81,6 +82,8 @@ void PrintText(const validate::CheckResult& r) {
 }
 
 }  // namespace
+
+nlohmann::json CheckResultJson(const validate::CheckResult& r) { return ResultJson(r); }
 
 void RegisterCheck(CLI::App& app) {
   auto* cmd = app.add_subcommand(

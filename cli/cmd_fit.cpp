@@ -6,6 +6,7 @@
 
 #include "brdf/atomic_file.h"
 #include "cli/common.h"
+#include "cli/tasks.h"
 #include "data_synth/instrument.h"
 #include "fit/fit.h"
 #include "validate/plot.h"
@@ -107,6 +108,10 @@ void WriteTracePlot(const std::string& path, const fit::Result& r) {
 }
 
 }  // namespace
+
+nlohmann::json FitResultJson(const fit::Result& r, const fit::Options& o) { return ResultJson(r, o); }
+std::string FitTraceCsv(const fit::Result& r) { return TraceCsv(r); }
+void WriteFitTracePlot(const std::string& path, const fit::Result& r) { WriteTracePlot(path, r); }
 
 LoadedModel LoadFitModel(const std::string& path) {
   std::ifstream in(path);

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <limits>
@@ -220,6 +221,92 @@ void HeatMap(const std::string& svg_path, const std::string& title, const std::s
   PLINT sub_ticks[] = {0};
   plcolorbar(&cw, &ch, PL_COLORBAR_SHADE | PL_COLORBAR_SHADE_LABEL, PL_POSITION_RIGHT, 0.03, 0.0, 0.04, 0.8, 0, 15, 1,
              0.0, 0.0, 0, 0.0, 1, label_opts, labels, 1, axis_opts, ticks, sub_ticks, n_values, values_arr);
+  out.Commit();
+}
+
+void PolarPlot(const std::string& svg_path, const std::string& title, const std::string& radius_label,
+               const std::vector<Series>& series, const std::vector<bool>& markers) {
+  if (markers.size() != series.size())
+    throw std::invalid_argument("polar plot '" + svg_path + "': one marker flag per series expected");
+  double rmax = 0;
+  for (const Series& s : series) {
+    if (s.x.size() != s.y.size())
+      throw std::invalid_argument("polar plot '" + svg_path + "': series '" + s.label + "' has mismatched sizes");
+    for (std::size_t i = 0; i < s.x.size(); ++i)
+      if (std::isfinite(s.x[i]) && std::isfinite(s.y[i]) && s.y[i] > 0) rmax = std::max(rmax, s.y[i]);
+  }
+  if (!(rmax > 0)) throw std::invalid_argument("polar plot '" + svg_path + "': no positive finite radii");
+  rmax *= 1.05;
+  constexpr double kPiLocal = 3.14159265358979323846;
+
+  std::lock_guard<std::mutex> lock(PlplotMutex());
+  SvgStream out(svg_path);
+  plcol0(15);
+  plschr(0, 0.8);
+  plenv(-rmax, rmax, -0.08 * rmax, rmax, 1, -2);  // equal scales, no box: the grid is drawn below
+  pllab("", "", title.c_str());
+  // Grid: rings at quarters of the largest radius, spokes every 15 degrees.
+  pllsty(2);
+  for (int k = 1; k <= 4; ++k) {
+    const double r = rmax * k / 4.0;
+    plarc(0, 0, r, r, 0, 180, 0, 0);
+    char buf[32];
+    std::snprintf(buf, sizeof buf, "%.3g", r);
+    plptex(r, -0.04 * rmax, 1, 0, 0.5, buf);
+  }
+  for (int deg = -90; deg <= 90; deg += 15) {
+    const double a = deg * kPiLocal / 180;
+    PLFLT xs[2] = {0, rmax * std::sin(a)}, ys[2] = {0, rmax * std::cos(a)};
+    plline(2, xs, ys);
+    if (deg % 30 == 0) {
+      char buf[16];
+      std::snprintf(buf, sizeof buf, "%d", deg);
+      plptex(1.04 * xs[1], 1.02 * ys[1], 1, 0, 0.5, buf);
+    }
+  }
+  pllsty(1);
+  plptex(0, -0.07 * rmax, 1, 0, 0.5, (radius_label + " (radius); signed angle from the normal [deg]").c_str());
+  std::vector<PLINT> opts, colours, styles, symbol_colours;
+  std::vector<PLFLT> widths, symbol_scales;
+  std::vector<const char*> texts, symbols;
+  std::vector<PLINT> symbol_numbers;
+  for (std::size_t s = 0; s < series.size(); ++s) {
+    std::vector<double> x, y;
+    for (std::size_t i = 0; i < series[s].x.size(); ++i) {
+      const double a = series[s].x[i], r = series[s].y[i];
+      if (!std::isfinite(a) || !std::isfinite(r) || r < 0) continue;
+      x.push_back(r * std::sin(a));
+      y.push_back(r * std::cos(a));
+    }
+    const PLINT colour = PLINT(s % 8) + 1;
+    plcol0(colour);
+    plwidth(2.0);
+    if (markers[s]) {
+      if (!x.empty()) plpoin(PLINT(x.size()), x.data(), y.data(), 4);
+    } else if (x.size() > 1) {
+      plline(PLINT(x.size()), x.data(), y.data());
+    }
+    opts.push_back(markers[s] ? PL_LEGEND_SYMBOL : PL_LEGEND_LINE);
+    colours.push_back(colour);
+    styles.push_back(1);
+    widths.push_back(2.0);
+    symbol_colours.push_back(colour);
+    symbol_scales.push_back(1.0);
+    symbol_numbers.push_back(1);
+    symbols.push_back("#(728)");
+    texts.push_back(series[s].label.c_str());
+  }
+  plwidth(1.0);
+  if (!texts.empty()) {
+    const PLINT n = PLINT(texts.size());
+    std::vector<PLINT> text_colours(texts.size(), 15);
+    PLFLT lw, lh;
+    plscol0a(0, 255, 255, 255, 0.85);
+    pllegend(&lw, &lh, PL_LEGEND_BACKGROUND | PL_LEGEND_BOUNDING_BOX, PL_POSITION_TOP | PL_POSITION_RIGHT | PL_POSITION_INSIDE,
+             0.02, 0.02, 0.08, 0, 15, 1, 0, 0, n, opts.data(), 1.0, 0.8, 2.0, 0.0, text_colours.data(), texts.data(),
+             nullptr, nullptr, nullptr, nullptr, colours.data(), styles.data(), widths.data(), symbol_colours.data(),
+             symbol_scales.data(), symbol_numbers.data(), symbols.data());
+  }
   out.Commit();
 }
 

@@ -27,4 +27,11 @@ void HeatMap(const std::string& svg_path, const std::string& title, const std::s
              const std::string& ylabel, const std::vector<double>& x_nodes, const std::vector<double>& y_nodes,
              const std::vector<double>& values);
 
+// Polar plot of BRDF slices: each series gives signed angles from the
+// normal (radians, in [-pi/2, pi/2], x) and radii (y, >= 0); the normal
+// points up, angle a at (r sin a, r cos a). Series with markers[s] = true
+// are drawn as points (measurements), the others as lines (models).
+void PolarPlot(const std::string& svg_path, const std::string& title, const std::string& radius_label,
+               const std::vector<Series>& series, const std::vector<bool>& markers);
+
 }  // namespace brdfkit::validate

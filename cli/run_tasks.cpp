@@ -1,0 +1,477 @@
+// The tasks of a scene: check, albedo, synth, fit, convergence. Each writes
+// into <out>/<task name>/ (every file atomically) and returns what the
+// report shows.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <map>
+
+#include "brdf/atomic_file.h"
+#include "brdf/merl.h"
+#include "brdf/params.h"
+#include "cli/common.h"
+#include "cli/progress.h"
+#include "cli/run.h"
+#include "cli/tasks.h"
+#include "data_synth/camera.h"
+#include "data_synth/outputs.h"
+#include "fit/fit.h"
+#include "validate/albedo.h"
+#include "validate/check.h"
+#include "validate/plot.h"
+
+namespace brdfkit::cli {
+
+namespace {
+
+namespace fs = std::filesystem;
+using json = nlohmann::json;
+
+constexpr double kDegree = kPi / 180;
+
+json Num(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
+
+// A material as a model and parameters (fitted ones from their fit's file).
+LoadedModel MaterialModel(const MaterialSpec& m, const RunContext& ctx) {
+  switch (m.kind) {
+    case MaterialSpec::Kind::kAnalytic: {
+      LoadedModel out{Model::Parse(m.model), m.params};
+      return out;
+    }
+    case MaterialSpec::Kind::kMerl: {
+      LoadedModel out{Model::Parse("merl", Settings{{"path", m.path}}), {}};
+      out.params = out.model.Info().Defaults();
+      return out;
+    }
+    case MaterialSpec::Kind::kFit:
+      return LoadFitModel((fs::path(ctx.out_dir) / m.fit_task / "fit.json").string());
+    case MaterialSpec::Kind::kTable:
+      break;
+  }
+  throw std::runtime_error("material '" + m.name + "' is a data table, not a BRDF");
+}
+
+std::string Describe(const MaterialSpec& m, const LoadedModel& lm) {
+  switch (m.kind) {
+    case MaterialSpec::Kind::kMerl: return "MERL file " + m.path;
+    case MaterialSpec::Kind::kFit: return "fit '" + m.fit_task + "': " + lm.model.Spec() + " (" + FormatParams(lm.model.Info(), lm.params) + ")";
+    default: return lm.model.Spec() + " (" + FormatParams(lm.model.Info(), lm.params) + ")";
+  }
+}
+
+struct TaskDir {
+  fs::path abs;
+  std::string rel;
+  TaskDir(const RunContext& ctx, const std::string& name) : abs(fs::path(ctx.out_dir) / name), rel(name) {
+    std::error_code ec;
+    fs::create_directories(abs, ec);
+    if (!fs::is_directory(abs)) throw std::runtime_error("cannot create the output folder '" + abs.string() + "'");
+  }
+  std::string Abs(const std::string& file) const { return (abs / file).string(); }
+  std::string Rel(const std::string& file) const { return rel + "/" + file; }
+};
+
+// log10 of f (one channel) at phi_d = 90 degrees over the MERL theta_h x
+// theta_d bin centres: the usual image of an isotropic BRDF.
+void HalfDiffImage(const std::string& path, const std::string& title,
+                   const std::function<double(const Eigen::Vector3d&, const Eigen::Vector3d&)>& f) {
+  constexpr int kN = 90;
+  std::vector<double> xs(kN), ys(kN), v(kN * kN);
+  for (int i = 0; i < kN; ++i) {
+    double th, td, pd;
+    MerlTable::BinCentre(i, i, 90, th, td, pd);
+    xs[i] = th / kDegree;
+    ys[i] = td / kDegree;
+  }
+  for (int j = 0; j < kN; ++j)
+    for (int i = 0; i < kN; ++i) {
+      Eigen::Vector3d wi, wo;
+      MerlTable::BinDirections(i, j, 90, wi, wo);
+      const double x = (wi.z() > 0 && wo.z() > 0) ? f(wi, wo) : NAN;
+      v[j * kN + i] = x > 0 ? std::log10(x) : NAN;
+    }
+  validate::HeatMap(path, title, "theta_h [deg]", "theta_d [deg]", xs, ys, v);
+}
+
+// ------------------------------------------------------------------ check
+
+TaskOutcome RunCheck(const TaskSpec& t, const RunContext& ctx) {
+  TaskOutcome o;
+  TaskDir dir(ctx, t.name);
+  json materials = json::array();
+  Progress progress("check " + t.name, double(t.materials.size()), ctx.quiet);
+  std::size_t implausible = 0;
+  for (std::size_t k = 0; k < t.materials.size(); ++k) {
+    ThrowIfInterrupted();
+    progress.Update(double(k), t.materials[k]);
+    const MaterialSpec& m = ctx.scene.materials.at(t.materials[k]);
+    const LoadedModel lm = MaterialModel(m, ctx);
+    validate::CheckOptions opt;
+    opt.sampling = t.sampling;
+    opt.sampling_samples = t.sampling_samples;
+    const auto b = lm.model.Make<double>();
+    const validate::CheckResult r = validate::CheckPlausibility(*b, lm.params.data(), opt);
+    json j = CheckResultJson(r);
+    j["material"] = m.name;
+    j["model"] = lm.model.Spec();
+    j["params"] = FormatParams(lm.model.Info(), lm.params);
+    j["description"] = Describe(m, lm);
+    implausible += r.plausible ? 0 : 1;
+    materials.push_back(j);
+  }
+  o.result = {{"materials", materials}, {"implausible", implausible}};
+  WriteFileAtomic(dir.Abs("check.json"), materials.dump(2) + "\n");
+  o.files.push_back(dir.Rel("check.json"));
+  return o;
+}
+
+// ------------------------------------------------------------------ albedo
+
+TaskOutcome RunAlbedo(const TaskSpec& t, const RunContext& ctx) {
+  TaskOutcome o;
+  TaskDir dir(ctx, t.name);
+  const Model model = Model::Parse(t.model);
+  validate::AlbedoTableRequest req;
+  req.axes = validate::ParseAxes(t.axes);
+  req.rule = t.gauss_nodes ? validate::NodeRule::kGauss : validate::NodeRule::kUniform;
+  req.quadrature.abs_tolerance = t.tolerance;
+  Progress progress("albedo " + t.name, 0, ctx.quiet);
+  const validate::AlbedoTable table = validate::BuildAlbedoTable(model, t.params, req);
+  progress.Finish();
+  ThrowIfInterrupted();
+  for (const std::string& f : t.formats) {
+    if (f == "csv") {
+      validate::WriteAlbedoCsv(table, dir.Abs("albedo.csv"));
+      for (const char* name : {"albedo.csv", "albedo_avg.csv", "albedo_ms.csv", "albedo_f1.csv"})
+        if (fs::exists(dir.Abs(name))) o.files.push_back(dir.Rel(name));
+    } else if (f == "exr") {
+      validate::WriteAlbedoExr(table, dir.Abs("albedo.exr"));
+      o.files.push_back(dir.Rel("albedo.exr"));
+    } else if (f == "header") {
+      std::string prefix;
+      for (char c : model.Spec()) prefix += std::isalnum(static_cast<unsigned char>(c)) ? c : '_';
+      validate::WriteAlbedoHeader(table, dir.Abs("albedo.h"), prefix + "_albedo");
+      o.files.push_back(dir.Rel("albedo.h"));
+    }
+  }
+  // Figures: E over (mu, first parameter) at the first node of a second
+  // parameter, and E_avg over the first parameter.
+  const validate::Axis& a1 = table.params[0];
+  std::vector<double> e(table.n_mu() * table.n1());
+  for (std::size_t i1 = 0; i1 < table.n1(); ++i1)
+    for (std::size_t m = 0; m < table.n_mu(); ++m) e[i1 * table.n_mu() + m] = table.at(m, i1, 0);
+  std::string slice;
+  if (table.params.size() > 1) slice = " at " + table.params[1].name + " = " + FormatDouble(table.params[1].nodes[0]);
+  validate::HeatMap(dir.Abs("E.svg"), "E(mu, " + a1.name + ") of " + table.model + slice, "mu = cos theta_o", a1.name,
+                    table.mu.nodes, a1.nodes, e);
+  std::vector<validate::Series> avg;
+  for (std::size_t i2 = 0; i2 < std::min<std::size_t>(table.n2(), 8); ++i2) {
+    validate::Series s{table.params.size() > 1 ? table.params[1].name + " = " + FormatDouble(table.params[1].nodes[i2])
+                                               : "E_avg",
+                       a1.nodes, {}};
+    for (std::size_t i1 = 0; i1 < table.n1(); ++i1) s.y.push_back(table.E_avg[i1 * table.n2() + i2]);
+    avg.push_back(s);
+  }
+  validate::LinePlot(dir.Abs("E_avg.svg"), "average albedo E_avg of " + table.model, a1.name, "E_avg", avg, false, false);
+  o.figures.push_back({"Directional albedo of " + table.model, dir.Rel("E.svg"),
+                       "E(mu, " + a1.name + ")" + slice + "; largest error estimate " + FormatDouble(table.max_error) + "."});
+  o.figures.push_back({"Average albedo of " + table.model, dir.Rel("E_avg.svg"),
+                       "E_avg = 2 int E(mu) mu dmu; the Kulla-Conty lobe's normalisation is 1 / (pi (1 - E_avg))."});
+  json axes = json::array();
+  for (const validate::Axis& a : table.params) axes.push_back({{"name", a.name}, {"nodes", a.nodes}});
+  o.result = {{"model", table.model},      {"params", table.params_text}, {"mu", table.mu.nodes},
+              {"axes", axes},              {"E_avg", table.E_avg},         {"entries", table.E.size()},
+              {"max_error", table.max_error}, {"limit_error", table.limit_error}, {"table_seconds", table.seconds}};
+  return o;
+}
+
+// ------------------------------------------------------------------ synth
+
+// Measured (markers) and optionally modelled (lines) in-plane slices:
+// samples with both directions in the plane of incidence, grouped by
+// theta_i; signed angle of wo from the normal, negative on the specular side.
+struct Slice {
+  double theta_i;
+  std::vector<double> angle, f;
+};
+
+std::vector<Slice> InPlaneSlices(const std::vector<fit::Sample>& samples, int channel, std::size_t max_slices) {
+  std::map<long, Slice> by_theta;
+  for (const fit::Sample& s : samples) {
+    if (std::abs(s.wi.y()) > 1e-9 || std::abs(s.wo.y()) > 1e-9 || s.wi.x() < -1e-12) continue;
+    const double ti = std::acos(std::clamp(s.wi.z(), -1.0, 1.0));
+    const long key = std::lround(ti / kDegree * 1000);
+    Slice& sl = by_theta[key];
+    sl.theta_i = ti;
+    sl.angle.push_back(std::atan2(s.wo.x(), s.wo.z()));
+    sl.f.push_back(s.f[channel]);
+  }
+  std::vector<Slice> all;
+  for (auto& [k, s] : by_theta)
+    if (s.f.size() >= 3) all.push_back(std::move(s));
+  std::vector<Slice> out;
+  if (all.empty()) return out;
+  // Spread over theta_i: first, last and the middle ones.
+  const std::size_t n = std::min(max_slices, all.size());
+  for (std::size_t k = 0; k < n; ++k) {
+    Slice s = all[n == 1 ? 0 : k * (all.size() - 1) / (n - 1)];
+    std::vector<std::size_t> idx(s.angle.size());
+    for (std::size_t i = 0; i < idx.size(); ++i) idx[i] = i;
+    std::sort(idx.begin(), idx.end(), [&](std::size_t a, std::size_t b) { return s.angle[a] < s.angle[b]; });
+    Slice sorted{s.theta_i, {}, {}};
+    for (std::size_t i : idx) {
+      sorted.angle.push_back(s.angle[i]);
+      sorted.f.push_back(s.f[i]);
+    }
+    out.push_back(sorted);
+  }
+  return out;
+}
+
+TaskOutcome RunSynth(const TaskSpec& t, const RunContext& ctx) {
+  TaskOutcome o;
+  TaskDir dir(ctx, t.name);
+  const MaterialSpec& m = ctx.scene.materials.at(t.material);
+  const LoadedModel lm = MaterialModel(m, ctx);
+  const InstrumentSpec& in = ctx.scene.instruments.at(t.instrument);
+  Progress progress("synth " + t.name, 0, ctx.quiet);
+  if (in.camera) {
+    const synth::CameraCapture cap = synth::RenderCamera(in.rig, lm.model, lm.params, t.seed);
+    ThrowIfInterrupted();
+    const std::vector<std::string> raw =
+        synth::WriteCameraCapture(dir.Abs("raw"), in.rig, cap, lm.model.Spec(), lm.params, t.seed);
+    for (const std::string& f : raw) o.files.push_back(dir.Rel(fs::path(f).filename().string()));
+    o.files.push_back(dir.Rel("raw.json"));
+    const synth::BrdfTable table = synth::ReduceCamera(in.rig, raw);
+    synth::WriteTableCsv(dir.Abs("data.csv"), table);
+    o.files.push_back(dir.Rel("data.csv"));
+    // The first exposure's green channel, top row at the top.
+    const int w = in.rig.width, h = in.rig.height;
+    std::vector<double> xs(w), ys(h), v(std::size_t(w) * h);
+    for (int x = 0; x < w; ++x) xs[x] = x;
+    for (int y = 0; y < h; ++y) ys[y] = y;
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) v[std::size_t(h - 1 - y) * w + x] = cap.raw[0][std::size_t(w) * h + std::size_t(y) * w + x];
+    validate::HeatMap(dir.Abs("raw.svg"), "raw image, green channel, exposure 1", "x [pixel]", "y [pixel]", xs, ys, v);
+    o.figures.push_back({"Camera image of " + m.name, dir.Rel("raw.svg"),
+                         "Raw sensor values before reduction (cos^4 falloff and noise included)."});
+    o.result = {{"material", m.name}, {"description", Describe(m, lm)}, {"instrument", t.instrument}, {"camera", true},
+                {"samples", table.rows.size()}, {"images", raw.size()}};
+    return o;
+  }
+  const synth::Instrument& inst = in.instrument;
+  const synth::SynthResult r = synth::Synthesize(inst, lm.model, lm.params, t.seed);
+  progress.Finish();
+  ThrowIfInterrupted();
+  synth::Provenance prov;
+  prov.model = lm.model.Spec();
+  prov.params = lm.params;
+  prov.params_text = FormatParams(lm.model.Info(), lm.params);
+  prov.seed = t.seed;
+  prov.command = "brdfkit run " + ctx.scene.origin + " (task " + t.name + ")";
+  // data.csv is always written: it is what fits read.
+  synth::WriteSynthOutput(dir.Abs("data.csv"), inst, r, prov);
+  o.files.push_back(dir.Rel("data.csv"));
+  o.files.push_back(dir.Rel("data.csv.json"));
+  for (const std::string& f : t.formats) {
+    if (f == "csv") continue;
+    const std::string name = f == "binary" ? "data.binary" : "data.exr";
+    synth::WriteSynthOutput(dir.Abs(name), inst, r, prov);
+    o.files.push_back(dir.Rel(name));
+    o.files.push_back(dir.Rel(name + ".json"));
+  }
+  // Figures: in-plane slices, or a theta_h x theta_d image for MERL plans.
+  std::vector<fit::Sample> samples;
+  for (std::size_t k = 0; k < r.samples.size(); ++k) {
+    if (!r.samples[k].valid) continue;
+    const synth::PlannedPair& p = r.plan.pairs[k];
+    samples.push_back({synth::DirectionFromAngles(p.theta_i, p.phi_i), synth::DirectionFromAngles(p.theta_o, p.phi_o),
+                       r.samples[k].f, r.samples[k].sigma});
+  }
+  const std::vector<Slice> slices = InPlaneSlices(samples, 1, 4);
+  if (!slices.empty()) {
+    std::vector<validate::Series> series;
+    for (const Slice& s : slices)
+      series.push_back({"theta_i = " + FormatDouble(std::round(s.theta_i / kDegree * 10) / 10) + " deg", s.angle, s.f});
+    validate::PolarPlot(dir.Abs("slices.svg"), "measured f_r (green), plane of incidence", "f_r [1/sr]", series,
+                        std::vector<bool>(series.size(), true));
+    o.figures.push_back({"Synthetic measurement of " + m.name, dir.Rel("slices.svg"),
+                         "In-plane samples; light from positive angles, the specular direction at negative angles."});
+  }
+  if (inst.plan.kind == synth::SamplingPlan::Kind::kMerl) {
+    const auto b = lm.model.Make<double>();
+    HalfDiffImage(dir.Abs("halfdiff.svg"), "log10 f_r (green) of " + m.name + ", phi_d = 90 deg",
+                  [&](const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) { return b->Eval(lm.params.data(), wi, wo)[1]; });
+    o.figures.push_back({"BRDF slice of " + m.name, dir.Rel("halfdiff.svg"), "theta_h x theta_d image of the measured material."});
+  }
+  const synth::SynthReport& rep = r.report;
+  o.result = {{"material", m.name},
+              {"description", Describe(m, lm)},
+              {"instrument", t.instrument},
+              {"camera", false},
+              {"measured", rep.measured},
+              {"not_measured", rep.not_measured},
+              {"saturated", rep.saturated},
+              {"aperture_order", rep.order},
+              {"quadrature_error", rep.quadrature_error},
+              {"noisy", r.noisy},
+              {"seed", t.seed},
+              {"synth_seconds", rep.seconds}};
+  return o;
+}
+
+// ------------------------------------------------------------------ fit
+
+TaskOutcome RunFit(const TaskSpec& t, const RunContext& ctx) {
+  TaskOutcome o;
+  TaskDir dir(ctx, t.name);
+  const std::string data_path = !t.data_task.empty()
+                                    ? (fs::path(ctx.out_dir) / t.data_task / "data.csv").string()
+                                    : ctx.scene.materials.at(t.data_material).path;
+  const fit::Dataset ds = fit::LoadDataset(data_path);
+  const Model model = Model::Parse(t.model);
+  fit::Options opt;
+  opt.metric = fit::ParseMetric(t.metric);
+  opt.solver = fit::ParseLinearSolver(t.solver);
+  opt.loss = t.loss == "huber" ? fit::Loss::kHuber : t.loss == "cauchy" ? fit::Loss::kCauchy : fit::Loss::kNone;
+  opt.max_iterations = t.max_iterations;
+  opt.starts_per_param = t.starts;
+  if (!t.init.empty()) opt.initial = ParseParams(model.Info(), t.init);
+  synth::Instrument inst;
+  if (!t.instrument.empty()) {
+    inst = ctx.scene.instruments.at(t.instrument).instrument;
+    opt.instrument = &inst;
+  }
+  Progress progress("fit " + t.name, double(t.max_iterations), ctx.quiet);
+  opt.progress = [&](int iteration, double, double cost) {
+    // Between iterations: the solver's state is consistent, so stopping here is clean.
+    ThrowIfInterrupted();
+    progress.Update(iteration, "cost " + FormatDouble(cost));
+  };
+  const fit::Result r = fit::Fit(model, ds, opt);
+  progress.Finish();
+  json j = FitResultJson(r, opt);
+  j["data"] = !t.data_task.empty() ? "task " + t.data_task : data_path;
+  WriteFileAtomic(dir.Abs("fit.json"), j.dump(2) + "\n");
+  WriteFileAtomic(dir.Abs("trace.csv"), FitTraceCsv(r));
+  o.files = {dir.Rel("fit.json"), dir.Rel("trace.csv")};
+  try {
+    WriteFitTracePlot(dir.Abs("trace.svg"), r);
+    o.files.push_back(dir.Rel("trace.svg"));
+    o.figures.push_back({"Fit " + t.name + ": error against run time", dir.Rel("trace.svg"),
+                         "Metric RMSE after each iteration of the final solve, against seconds since the start "
+                         "(initialisation included)."});
+  } catch (const std::invalid_argument&) {
+    // A fit that converged at its starting point has no positive trace to draw.
+  }
+  const auto fitted = model.Make<double>();
+  // Measured against fitted, in the plane of incidence.
+  const std::vector<Slice> slices = InPlaneSlices(ds.samples, 1, 3);
+  if (!slices.empty()) {
+    std::vector<validate::Series> series;
+    std::vector<bool> markers;
+    for (const Slice& s : slices) {
+      const std::string label = "theta_i = " + FormatDouble(std::round(s.theta_i / kDegree * 10) / 10);
+      series.push_back({label + " measured", s.angle, s.f});
+      markers.push_back(true);
+      validate::Series line{label + " fitted", {}, {}};
+      const Eigen::Vector3d wi = synth::DirectionFromAngles(s.theta_i, 0);
+      for (int k = -89 * 4; k <= 89 * 4; ++k) {
+        const double a = k * 0.25 * kDegree;
+        const Eigen::Vector3d wo(std::sin(a), 0, std::cos(a));
+        line.x.push_back(a);
+        line.y.push_back(fitted->Eval(r.params.data(), wi, wo)[1]);
+      }
+      series.push_back(line);
+      markers.push_back(false);
+    }
+    validate::PolarPlot(dir.Abs("slices.svg"), "measured and fitted f_r (green), plane of incidence", "f_r [1/sr]",
+                        series, markers);
+    o.files.push_back(dir.Rel("slices.svg"));
+    o.figures.push_back({"Fit " + t.name + ": measured against fitted", dir.Rel("slices.svg"),
+                         "Points: data; lines: the fitted " + r.model.Spec() + ". Light from positive angles."});
+  }
+  // Residuals against the half-vector angle: RMS relative residual per bin.
+  {
+    constexpr int kBins = 18;
+    std::vector<double> centre(kBins), sum2[3], count(kBins, 0.0);
+    for (auto& v : sum2) v.assign(kBins, 0.0);
+    for (const fit::Sample& s : ds.samples) {
+      const Eigen::Vector3d h = (s.wi + s.wo).normalized();
+      const int bin = std::min(kBins - 1, static_cast<int>(std::acos(std::clamp(h.z(), -1.0, 1.0)) / (90 * kDegree) * kBins));
+      const Rgb<double> f = fitted->Eval(r.params.data(), s.wi, s.wo);
+      bool any = false;
+      for (int c = 0; c < 3; ++c)
+        if (s.f[c] > 0) {
+          const double rel = (f[c] - s.f[c]) / s.f[c];
+          sum2[c][bin] += rel * rel;
+          any = true;
+        }
+      count[bin] += any ? 1 : 0;
+    }
+    std::vector<validate::Series> series;
+    static const char* kNames[3] = {"red", "green", "blue"};
+    for (int c = 0; c < 3; ++c) {
+      validate::Series s{kNames[c], {}, {}};
+      for (int b = 0; b < kBins; ++b)
+        if (count[b] > 0 && sum2[c][b] > 0) {
+          s.x.push_back((b + 0.5) * 90.0 / kBins);
+          s.y.push_back(std::sqrt(sum2[c][b] / count[b]));
+        }
+      if (!s.x.empty()) series.push_back(s);
+    }
+    if (!series.empty()) {
+      validate::LinePlot(dir.Abs("residuals.svg"), "fit residuals: RMS of (fitted - measured) / measured", "theta_h [deg]",
+                         "RMS relative residual", series, false, true);
+      o.files.push_back(dir.Rel("residuals.svg"));
+      o.figures.push_back({"Fit " + t.name + ": residuals", dir.Rel("residuals.svg"),
+                           "Per 5-degree bin of the half-vector angle theta_h, per channel."});
+    }
+  }
+  HalfDiffImage(dir.Abs("halfdiff.svg"), "log10 f_r (green) of the fitted " + r.model.Spec() + ", phi_d = 90 deg",
+                [&](const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) { return fitted->Eval(r.params.data(), wi, wo)[1]; });
+  o.files.push_back(dir.Rel("halfdiff.svg"));
+  o.figures.push_back({"Fit " + t.name + ": theta_h x theta_d slice", dir.Rel("halfdiff.svg"),
+                       "The fitted model over the MERL half/difference angles."});
+  o.result = j;
+  o.result.erase("trace");
+  o.result["data_missing"] = ds.missing;
+  return o;
+}
+
+// ------------------------------------------------------------------ convergence
+
+TaskOutcome RunConvergenceTask(const TaskSpec& t, const RunContext& ctx) {
+  TaskOutcome o;
+  TaskDir dir(ctx, t.name);
+  const ConvergenceOutcome c = RunConvergence(dir.abs.string(), t.methods, t.quick, false, ctx.quiet);
+  o.files = {dir.Rel("convergence.csv"), dir.Rel("convergence.svg"), dir.Rel("convergence_summary.md")};
+  o.figures.push_back({"Hemisphere integrators: error against run time", dir.Rel("convergence.svg"),
+                       "Worst absolute error over the reference integrals against the mean time per integral."});
+  o.result = {{"summary_markdown", c.summary_markdown}, {"rows", c.rows}, {"cases", c.cases}, {"quick", t.quick}};
+  return o;
+}
+
+}  // namespace
+
+TaskOutcome RunTask(const TaskSpec& task, const RunContext& ctx) {
+  const auto start = std::chrono::steady_clock::now();
+  TaskOutcome o;
+  switch (task.type) {
+    case TaskSpec::Type::kCheck: o = RunCheck(task, ctx); break;
+    case TaskSpec::Type::kAlbedo: o = RunAlbedo(task, ctx); break;
+    case TaskSpec::Type::kSynth: o = RunSynth(task, ctx); break;
+    case TaskSpec::Type::kFit: o = RunFit(task, ctx); break;
+    case TaskSpec::Type::kConvergence: o = RunConvergenceTask(task, ctx); break;
+  }
+  for (const Figure& f : o.figures)
+    if (std::find(o.files.begin(), o.files.end(), f.file) == o.files.end()) o.files.push_back(f.file);
+  o.name = task.name;
+  o.type = TaskTypeName(task.type);
+  o.status = "computed";
+  o.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return o;
+}
+
+}  // namespace brdfkit::cli

@@ -1,0 +1,506 @@
+#include "cli/scene.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <set>
+#include <sstream>
+#include <stdexcept>
+
+#include "brdf/merl.h"
+#include "brdf/params.h"
+#include "validate/albedo.h"
+
+namespace brdfkit::cli {
+
+namespace {
+
+namespace fs = std::filesystem;
+using json = nlohmann::json;
+
+[[noreturn]] void Fail(const std::string& origin, const std::string& path, const std::string& what) {
+  throw std::runtime_error(origin + ": " + (path.empty() ? "" : path + ": ") + what);
+}
+
+// Reads one JSON object, remembering the keys used so that unknown keys
+// (typos) are reported instead of ignored.
+class Reader {
+ public:
+  Reader(const json& j, std::string path, const std::string& origin) : j_(j), path_(std::move(path)), origin_(origin) {
+    if (!j_.is_object()) Fail(origin_, path_, std::string("expected an object, got ") + j_.type_name());
+  }
+  std::string Path(const std::string& key) const { return path_.empty() ? key : path_ + "." + key; }
+  [[noreturn]] void FailKey(const std::string& key, const std::string& what) const { Fail(origin_, Path(key), what); }
+  bool Has(const std::string& key) const { return j_.contains(key); }
+  const json& Get(const std::string& key) {
+    if (!j_.contains(key)) FailKey(key, "missing (required)");
+    used_.insert(key);
+    return j_.at(key);
+  }
+  std::string String(const std::string& key) {
+    const json& v = Get(key);
+    if (!v.is_string()) FailKey(key, std::string("expected a string, got ") + v.type_name());
+    return v.get<std::string>();
+  }
+  std::string String(const std::string& key, const std::string& fallback) { return Has(key) ? String(key) : fallback; }
+  bool Bool(const std::string& key, bool fallback) {
+    if (!Has(key)) return fallback;
+    const json& v = Get(key);
+    if (!v.is_boolean()) FailKey(key, std::string("expected true or false, got ") + v.type_name());
+    return v.get<bool>();
+  }
+  double Number(const std::string& key, double fallback, double lower, double upper) {
+    if (!Has(key)) return fallback;
+    const json& v = Get(key);
+    if (!v.is_number()) FailKey(key, std::string("expected a number, got ") + v.type_name());
+    const double x = v.get<double>();
+    if (!std::isfinite(x) || x < lower || x > upper)
+      FailKey(key, "value " + v.dump() + " is outside [" + FormatDouble(lower) + ", " + FormatDouble(upper) + "]");
+    return x;
+  }
+  std::int64_t Integer(const std::string& key, std::int64_t fallback, std::int64_t lower, std::int64_t upper) {
+    if (!Has(key)) return fallback;
+    const json& v = Get(key);
+    if (!v.is_number_integer()) FailKey(key, std::string("expected an integer, got ") + v.dump());
+    const std::int64_t x = v.get<std::int64_t>();
+    if (x < lower || x > upper)
+      FailKey(key, "value " + v.dump() + " is outside [" + std::to_string(lower) + ", " + std::to_string(upper) + "]");
+    return x;
+  }
+  std::vector<std::string> Strings(const std::string& key, bool required) {
+    std::vector<std::string> out;
+    if (!required && !Has(key)) return out;
+    const json& v = Get(key);
+    if (!v.is_array()) FailKey(key, std::string("expected an array of strings, got ") + v.type_name());
+    for (std::size_t i = 0; i < v.size(); ++i) {
+      if (!v[i].is_string()) FailKey(key + "[" + std::to_string(i) + "]", "expected a string");
+      out.push_back(v[i].get<std::string>());
+    }
+    return out;
+  }
+  // Unknown keys are errors; "$comment" and "description" are free text.
+  void Finish() const {
+    for (auto it = j_.begin(); it != j_.end(); ++it)
+      if (!used_.count(it.key()) && it.key() != "$comment" && it.key() != "description")
+        FailKey(it.key(), "unknown key");
+  }
+  const std::string& origin() const { return origin_; }
+
+ private:
+  const json& j_;
+  std::string path_;
+  const std::string& origin_;
+  std::set<std::string> used_;
+};
+
+// Names become folder names and report anchors.
+void CheckName(const std::string& name, const std::string& origin, const std::string& path) {
+  if (name.empty() || name.size() > 64) Fail(origin, path, "a name must have 1 to 64 characters");
+  for (char c : name)
+    if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-'))
+      Fail(origin, path, "name '" + name + "' may contain only letters, digits, '_' and '-'");
+}
+
+std::string Resolve(const std::string& base_dir, const std::string& p) {
+  if (p.empty() || fs::path(p).is_absolute() || base_dir.empty()) return p;
+  return (fs::path(base_dir) / p).lexically_normal().string();
+}
+
+// The file must exist and be a readable regular file.
+std::string ExistingFile(const std::string& base_dir, const std::string& p, const std::string& origin,
+                         const std::string& key_path) {
+  const std::string r = Resolve(base_dir, p);
+  std::error_code ec;
+  if (!fs::exists(r, ec)) Fail(origin, key_path, "file '" + r + "' not found");
+  if (fs::is_directory(r, ec)) Fail(origin, key_path, "'" + r + "' is a directory, not a file");
+  std::ifstream in(r, std::ios::binary);
+  if (!in) Fail(origin, key_path, "cannot read '" + r + "'");
+  return r;
+}
+
+// Parameters as "name=value,..." or as an object {"name": value or [r, g, b]}.
+std::vector<double> ReadParams(Reader& r, const std::string& key, const ModelInfo& info) {
+  std::string text;
+  if (r.Has(key)) {
+    const json& v = r.Get(key);
+    if (v.is_string()) {
+      text = v.get<std::string>();
+    } else if (v.is_object()) {
+      for (auto it = v.begin(); it != v.end(); ++it) {
+        std::string value;
+        if (it->is_number()) {
+          value = FormatDouble(it->get<double>());
+        } else if (it->is_array() && it->size() == 3 && (*it)[0].is_number() && (*it)[1].is_number() &&
+                   (*it)[2].is_number()) {
+          value = FormatDouble((*it)[0].get<double>()) + ":" + FormatDouble((*it)[1].get<double>()) + ":" +
+                  FormatDouble((*it)[2].get<double>());
+        } else {
+          r.FailKey(key + "." + it.key(), "expected a number or [r, g, b]");
+        }
+        text += (text.empty() ? "" : ",") + it.key() + "=" + value;
+      }
+    } else {
+      r.FailKey(key, "expected \"name=value,...\" or an object of name: value");
+    }
+  }
+  try {
+    return ParseParams(info, text);
+  } catch (const std::exception& e) {
+    r.FailKey(key, e.what());
+  }
+}
+
+Model ParseModelAt(Reader& r, const std::string& key) {
+  const std::string spec = r.String(key);
+  try {
+    return Model::Parse(spec);
+  } catch (const std::exception& e) {
+    r.FailKey(key, e.what());
+  }
+}
+
+const std::set<std::string> kSynthFormats = {"csv", "binary", "exr"};
+const std::set<std::string> kAlbedoFormats = {"csv", "exr", "header"};
+
+}  // namespace
+
+const char* TaskTypeName(TaskSpec::Type t) {
+  switch (t) {
+    case TaskSpec::Type::kCheck: return "check";
+    case TaskSpec::Type::kAlbedo: return "albedo";
+    case TaskSpec::Type::kSynth: return "synth";
+    case TaskSpec::Type::kFit: return "fit";
+    case TaskSpec::Type::kConvergence: return "convergence";
+  }
+  return "?";
+}
+
+const TaskSpec* Scene::FindTask(const std::string& name) const {
+  for (const TaskSpec& t : tasks)
+    if (t.name == name) return &t;
+  return nullptr;
+}
+
+std::vector<std::string> Scene::Dependencies(const TaskSpec& task) const {
+  std::vector<std::string> out;
+  const auto add = [&](const std::string& n) {
+    if (!n.empty() && std::find(out.begin(), out.end(), n) == out.end()) out.push_back(n);
+  };
+  const auto material_dep = [&](const std::string& m) {
+    auto it = materials.find(m);
+    if (it != materials.end() && it->second.kind == MaterialSpec::Kind::kFit) add(it->second.fit_task);
+  };
+  switch (task.type) {
+    case TaskSpec::Type::kCheck:
+      for (const std::string& m : task.materials) material_dep(m);
+      break;
+    case TaskSpec::Type::kSynth:
+      material_dep(task.material);
+      break;
+    case TaskSpec::Type::kFit:
+      add(task.data_task);
+      break;
+    default:
+      break;
+  }
+  return out;
+}
+
+Scene ParseScene(const std::string& text, const std::string& origin, const std::string& base_dir) {
+  json root;
+  try {
+    root = json::parse(text);
+  } catch (const json::parse_error& e) {
+    // nlohmann's message gives the line and column.
+    std::string what = e.what();
+    const auto p = what.find("parse error");
+    throw std::runtime_error(origin + ": not valid JSON: " + (p == std::string::npos ? what : what.substr(p)));
+  }
+  Scene s;
+  s.origin = origin;
+  s.base_dir = base_dir;
+  Reader top(root, "", s.origin);
+  if (top.Has("$schema")) top.Get("$schema");
+  s.title = top.String("title", "");
+  s.output = top.String("output", s.output);
+  if (s.output.empty()) top.FailKey("output", "must not be empty");
+
+  // Materials.
+  if (top.Has("materials")) {
+    const json& mats = top.Get("materials");
+    if (!mats.is_object()) top.FailKey("materials", "expected an object of name: material");
+    for (auto it = mats.begin(); it != mats.end(); ++it) {
+      const std::string path = "materials." + it.key();
+      CheckName(it.key(), s.origin, path);
+      Reader r(it.value(), path, s.origin);
+      MaterialSpec m;
+      m.name = it.key();
+      const int kinds = int(r.Has("model")) + int(r.Has("merl")) + int(r.Has("table")) + int(r.Has("fit"));
+      if (kinds != 1) Fail(s.origin, path, "give exactly one of \"model\", \"merl\", \"table\" or \"fit\"");
+      if (r.Has("model")) {
+        m.kind = MaterialSpec::Kind::kAnalytic;
+        const Model model = ParseModelAt(r, "model");
+        if (!model.Info().settings.empty())
+          r.FailKey("model", "'" + model.Spec() + "' reads a file: use \"merl\": FILE for measured materials");
+        m.model = model.Spec();
+        m.params = ReadParams(r, "params", model.Info());
+      } else if (r.Has("merl")) {
+        m.kind = MaterialSpec::Kind::kMerl;
+        m.path = ExistingFile(s.base_dir, r.String("merl"), s.origin, r.Path("merl"));
+        // The header and the size are checked now, not after other work.
+        try {
+          (void)MerlTable::Read(m.path);
+        } catch (const std::exception& e) {
+          r.FailKey("merl", e.what());
+        }
+      } else if (r.Has("table")) {
+        m.kind = MaterialSpec::Kind::kTable;
+        m.path = ExistingFile(s.base_dir, r.String("table"), s.origin, r.Path("table"));
+      } else {
+        m.kind = MaterialSpec::Kind::kFit;
+        m.fit_task = r.String("fit");
+      }
+      r.Finish();
+      s.materials[m.name] = m;
+    }
+  }
+
+  // Instruments.
+  if (top.Has("instruments")) {
+    const json& insts = top.Get("instruments");
+    if (!insts.is_object()) top.FailKey("instruments", "expected an object of name: instrument");
+    for (auto it = insts.begin(); it != insts.end(); ++it) {
+      const std::string path = "instruments." + it.key();
+      CheckName(it.key(), s.origin, path);
+      Reader r(it.value(), path, s.origin);
+      InstrumentSpec in;
+      in.name = it.key();
+      const std::string type = r.String("type");
+      if (type != "gonioreflectometer" && type != "camera")
+        r.FailKey("type", "unknown instrument type '" + type + "' (expected gonioreflectometer or camera)");
+      in.camera = type == "camera";
+      if (r.Has("file") && r.Has("spec")) Fail(s.origin, path, "give \"file\" or \"spec\", not both");
+      try {
+        if (r.Has("file")) {
+          in.file = ExistingFile(s.base_dir, r.String("file"), s.origin, r.Path("file"));
+          if (in.camera) in.rig = synth::LoadCameraRig(in.file);
+          else in.instrument = synth::LoadInstrument(in.file);
+        } else if (r.Has("spec")) {
+          const json& spec = r.Get("spec");
+          const std::string where = s.origin + ": " + r.Path("spec");
+          if (in.camera) in.rig = synth::ParseCameraRig(spec, where);
+          else in.instrument = synth::ParseInstrument(spec, where, s.base_dir);
+        } else {
+          if (in.camera) in.rig = synth::DefaultCameraRig();
+          else in.instrument = synth::DefaultInstrument();
+        }
+      } catch (const std::runtime_error& e) {
+        const std::string what = e.what();
+        // Messages from the instrument parser already name the file and key.
+        if (what.rfind(s.origin, 0) == 0 || (!in.file.empty() && what.find(in.file) != std::string::npos)) throw;
+        Fail(s.origin, path, what);
+      }
+      r.Finish();
+      s.instruments[in.name] = in;
+    }
+  }
+
+  // Tasks.
+  const json& tasks = top.Get("tasks");
+  if (!tasks.is_array() || tasks.empty()) top.FailKey("tasks", "expected a non-empty array of tasks");
+  for (std::size_t k = 0; k < tasks.size(); ++k) {
+    const std::string path = "tasks[" + std::to_string(k) + "]";
+    Reader r(tasks[k], path, s.origin);
+    TaskSpec t;
+    t.json = tasks[k];
+    t.name = r.String("name");
+    CheckName(t.name, s.origin, r.Path("name"));
+    if (s.FindTask(t.name)) r.FailKey("name", "a task named '" + t.name + "' is already defined");
+    const std::string type = r.String("type");
+    const auto need_material = [&](const std::string& key, const std::string& name) -> const MaterialSpec& {
+      auto it = s.materials.find(name);
+      if (it == s.materials.end()) r.FailKey(key, "no material named '" + name + "' in \"materials\"");
+      return it->second;
+    };
+    if (type == "check") {
+      t.type = TaskSpec::Type::kCheck;
+      t.materials = r.Strings("materials", true);
+      if (t.materials.empty()) r.FailKey("materials", "name at least one material");
+      for (std::size_t i = 0; i < t.materials.size(); ++i) {
+        const MaterialSpec& m = need_material("materials[" + std::to_string(i) + "]", t.materials[i]);
+        if (m.kind == MaterialSpec::Kind::kTable)
+          r.FailKey("materials[" + std::to_string(i) + "]",
+                    "'" + m.name + "' is a data table, which has no BRDF to check (fit a model to it first)");
+      }
+      t.sampling = r.Bool("sampling", true);
+      t.sampling_samples = r.Integer("samples", 100000, 1000, 100000000);
+    } else if (type == "albedo") {
+      t.type = TaskSpec::Type::kAlbedo;
+      const Model model = ParseModelAt(r, "model");
+      if (!model.Info().settings.empty()) r.FailKey("model", "albedo tables are made of analytic models");
+      t.model = model.Spec();
+      t.params = ReadParams(r, "params", model.Info());
+      t.axes = r.String("axes", t.axes);
+      try {
+        const auto axes = validate::ParseAxes(t.axes);
+        if (axes.empty() || axes[0].name != "mu") throw std::runtime_error("the first axis must be mu:N");
+        if (axes.size() < 2 || axes.size() > 3)
+          throw std::runtime_error("give mu and one or two parameters, e.g. mu:32,alpha:32");
+        for (std::size_t i = 1; i < axes.size(); ++i) {
+          bool found = false;
+          for (const ParamInfo& p : model.Info().params) found = found || p.name == axes[i].name;
+          if (!found) throw std::runtime_error("'" + axes[i].name + "' is not a parameter of " + model.Spec());
+        }
+      } catch (const std::exception& e) {
+        r.FailKey("axes", e.what());
+      }
+      const std::string nodes = r.String("nodes", "uniform");
+      if (nodes != "uniform" && nodes != "gauss") r.FailKey("nodes", "expected \"uniform\" or \"gauss\"");
+      t.gauss_nodes = nodes == "gauss";
+      t.tolerance = r.Number("tolerance", t.tolerance, 1e-12, 1e-2);
+      t.formats = r.Strings("formats", false);
+      if (!r.Has("formats")) t.formats = {"csv", "exr", "header"};
+      for (const std::string& f : t.formats)
+        if (!kAlbedoFormats.count(f)) r.FailKey("formats", "unknown format '" + f + "' (expected csv, exr, header)");
+    } else if (type == "synth") {
+      t.type = TaskSpec::Type::kSynth;
+      t.material = r.String("material");
+      const MaterialSpec& m = need_material("material", t.material);
+      if (m.kind == MaterialSpec::Kind::kTable)
+        r.FailKey("material", "'" + m.name + "' is a data table: an instrument measures a BRDF, not a table");
+      t.instrument = r.String("instrument");
+      auto in = s.instruments.find(t.instrument);
+      if (in == s.instruments.end())
+        r.FailKey("instrument", "no instrument named '" + t.instrument + "' in \"instruments\"");
+      t.seed = static_cast<std::uint64_t>(r.Integer("seed", 0, 0, INT64_MAX));
+      t.formats = r.Strings("formats", false);
+      if (!r.Has("formats")) t.formats = {"csv"};
+      for (const std::string& f : t.formats) {
+        if (!kSynthFormats.count(f)) r.FailKey("formats", "unknown format '" + f + "' (expected csv, binary, exr)");
+        if (in->second.camera && f != "csv")
+          r.FailKey("formats", "a camera writes raw EXR images and a reduced csv table; '" + f + "' does not apply");
+        if (!in->second.camera && f == "binary" && in->second.instrument.plan.kind != synth::SamplingPlan::Kind::kMerl)
+          r.FailKey("formats", "'binary' (MERL) needs an instrument whose plan is the MERL grid");
+        if (!in->second.camera && f == "exr" && in->second.instrument.plan.kind != synth::SamplingPlan::Kind::kFull &&
+            in->second.instrument.plan.kind != synth::SamplingPlan::Kind::kInPlane &&
+            in->second.instrument.plan.kind != synth::SamplingPlan::Kind::kMerl)
+          r.FailKey("formats", "'exr' needs a grid plan (full, in_plane or merl)");
+      }
+    } else if (type == "fit") {
+      t.type = TaskSpec::Type::kFit;
+      const std::string data = r.String("data");
+      if (const TaskSpec* d = s.FindTask(data)) {
+        if (d->type != TaskSpec::Type::kSynth)
+          r.FailKey("data", "task '" + data + "' is a " + TaskTypeName(d->type) + " task; data comes from a synth task");
+        t.data_task = data;
+      } else if (s.materials.count(data)) {
+        const MaterialSpec& m = s.materials.at(data);
+        if (m.kind != MaterialSpec::Kind::kMerl && m.kind != MaterialSpec::Kind::kTable)
+          r.FailKey("data", "material '" + data + "' is not measured data (use a merl or table material, or a synth task)");
+        t.data_material = data;
+      } else {
+        r.FailKey("data", "'" + data + "' is neither a synth task defined before this one nor a measured material");
+      }
+      const Model model = ParseModelAt(r, "model");
+      if (!model.Info().settings.empty()) r.FailKey("model", "fit an analytic model or a sum of lobes");
+      t.model = model.Spec();
+      if (r.Has("init")) {
+        t.init = r.String("init");
+        try {
+          ParseParams(model.Info(), t.init);
+        } catch (const std::exception& e) {
+          r.FailKey("init", e.what());
+        }
+      }
+      t.metric = r.String("metric", t.metric);
+      if (!std::set<std::string>{"l2", "relative", "cosine", "log", "cbrt"}.count(t.metric))
+        r.FailKey("metric", "unknown metric '" + t.metric + "' (expected l2, relative, cosine, log or cbrt)");
+      t.loss = r.String("loss", t.loss);
+      if (!std::set<std::string>{"none", "huber", "cauchy"}.count(t.loss))
+        r.FailKey("loss", "unknown loss '" + t.loss + "' (expected none, huber or cauchy)");
+      t.solver = r.String("solver", t.solver);
+      if (!std::set<std::string>{"dense_qr", "dense_normal_cholesky", "iterative_schur", "cgnr"}.count(t.solver))
+        r.FailKey("solver", "unknown solver '" + t.solver +
+                                "' (expected dense_qr, dense_normal_cholesky, iterative_schur or cgnr)");
+      if (r.Has("instrument")) {
+        t.instrument = r.String("instrument");
+        auto in = s.instruments.find(t.instrument);
+        if (in == s.instruments.end())
+          r.FailKey("instrument", "no instrument named '" + t.instrument + "' in \"instruments\"");
+        if (in->second.camera) r.FailKey("instrument", "fits go through a gonioreflectometer's apertures, not a camera");
+      }
+      t.max_iterations = static_cast<int>(r.Integer("max_iterations", t.max_iterations, 1, 100000));
+      t.starts = static_cast<int>(r.Integer("starts", t.starts, 1, 100));
+    } else if (type == "convergence") {
+      t.type = TaskSpec::Type::kConvergence;
+      t.quick = r.Bool("quick", true);
+      t.methods = r.Strings("methods", false);
+      for (const std::string& m : t.methods)
+        if (!std::set<std::string>{"uniform", "cosine", "importance", "sobol", "gauss_legendre", "adaptive"}.count(m))
+          r.FailKey("methods", "unknown integrator '" + m + "'");
+    } else {
+      r.FailKey("type", "unknown task type '" + type + "' (expected check, albedo, synth, fit or convergence)");
+    }
+    r.Finish();
+    s.tasks.push_back(std::move(t));
+  }
+
+  // Fitted materials name fit tasks.
+  for (const auto& [name, m] : s.materials) {
+    if (m.kind != MaterialSpec::Kind::kFit) continue;
+    const TaskSpec* t = s.FindTask(m.fit_task);
+    if (!t || t->type != TaskSpec::Type::kFit)
+      Fail(s.origin, "materials." + name + ".fit", "no fit task named '" + m.fit_task + "'");
+  }
+
+  // Requested outputs.
+  if (top.Has("outputs")) {
+    s.requested = top.Strings("outputs", true);
+    if (s.requested.empty()) top.FailKey("outputs", "name at least one task (or leave \"outputs\" out for all)");
+    for (std::size_t i = 0; i < s.requested.size(); ++i)
+      if (!s.FindTask(s.requested[i]))
+        top.FailKey("outputs[" + std::to_string(i) + "]", "no task named '" + s.requested[i] + "'");
+  } else {
+    for (const TaskSpec& t : s.tasks) s.requested.push_back(t.name);
+  }
+  top.Finish();
+
+  // Dependency cycles (a fit of data measured on its own result).
+  std::map<std::string, int> state;  // 1 visiting, 2 done
+  std::function<void(const std::string&, std::vector<std::string>&)> visit = [&](const std::string& n,
+                                                                                std::vector<std::string>& stack) {
+    if (state[n] == 2) return;
+    stack.push_back(n);
+    if (state[n] == 1) {
+      std::string cycle;
+      for (const std::string& x : stack) cycle += (cycle.empty() ? "" : " -> ") + x;
+      Fail(s.origin, "tasks", "circular dependency: " + cycle);
+    }
+    state[n] = 1;
+    for (const std::string& d : s.Dependencies(*s.FindTask(n))) visit(d, stack);
+    state[n] = 2;
+    stack.pop_back();
+  };
+  for (const TaskSpec& t : s.tasks) {
+    std::vector<std::string> stack;
+    visit(t.name, stack);
+  }
+  return s;
+}
+
+Scene LoadScene(const std::string& path) {
+  std::error_code ec;
+  if (!fs::exists(path, ec)) throw std::runtime_error(path + ": scene file not found");
+  if (fs::is_directory(path, ec)) throw std::runtime_error(path + ": is a directory, not a scene file");
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw std::runtime_error(path + ": cannot read the scene file");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  const fs::path parent = fs::path(path).parent_path();
+  return ParseScene(ss.str(), path, parent.empty() ? "." : parent.string());
+}
+
+}  // namespace brdfkit::cli
