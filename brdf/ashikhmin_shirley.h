@@ -99,7 +99,7 @@ struct AshikhminShirley {
     using std::sqrt;
     if (!SameUpperHemisphere(wi, wo)) return Rgb<T>::Constant(T(0));
     const Vec3<T> h = HalfVector(wi, wo);
-    const T k_h = wi.dot(h);
+    const T k_h = HalfCos(wi, wo);  // = wi.h; the dot product goes negative by rounding for opposite grazing pairs
     const T max_cos = wi.z() > wo.z() ? wi.z() : wo.z();
     const T spec = sqrt((p[6] + T(1)) * (p[7] + T(1))) * T(0.125 * kInvPi) * Lobe(p, h) / (k_h * max_cos);
     // Rounding can put k.h just above 1; (1 - k.h)^5 must not go negative.
@@ -123,7 +123,7 @@ struct AshikhminShirley {
     double pd, ps;
     LobeProbabilities(p, pd, ps);
     const Vec3<T> h = HalfVector(wi, wo);
-    const T spec = sqrt((p[6] + T(1)) * (p[7] + T(1))) * T(0.5 * kInvPi) * Lobe(p, h) / (T(4) * wo.dot(h));
+    const T spec = sqrt((p[6] + T(1)) * (p[7] + T(1))) * T(0.5 * kInvPi) * Lobe(p, h) / (T(4) * HalfCos(wi, wo));
     return T(pd) * wi.z() * T(kInvPi) + T(ps) * spec;
   }
 

@@ -92,6 +92,15 @@ inline Vec3<T> HalfVector(const Vec3<T>& wi, const Vec3<T>& wo) {
   return h / sqrt(h.squaredNorm());
 }
 
+// wi.h = wo.h = |wi + wo| / 2 for unit wi, wo and h = HalfVector(wi, wo):
+// > 0 above the horizon, where the dot product with h cancels and goes
+// negative for nearly opposite grazing pairs (|w| = 1 holds only to rounding).
+template <typename T>
+inline T HalfCos(const Vec3<T>& wi, const Vec3<T>& wo) {
+  using std::sqrt;
+  return T(0.5) * sqrt(T((wi + wo).squaredNorm()));
+}
+
 // Both directions strictly above the horizon.
 template <typename T>
 inline bool SameUpperHemisphere(const Vec3<T>& wi, const Vec3<T>& wo) {

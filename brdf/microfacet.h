@@ -123,10 +123,15 @@ inline T FresnelConductor(const T& eta, const T& k, const T& cos_theta) {
   // At c = 0 and a = 0 together (k = 0, eta <= 1) t1 + t2 = 0: that is
   // total reflection.
   if (t1 + t2 <= T(0)) return T(1);
-  const T rs = (t1 - t2) / (t1 + t2);
+  // Numerators as sums of squares, t1 - t2 = (a - c)^2 + b^2 and t3 - t4 =
+  // (a c - s^2)^2 + b^2 c^2: the differences cancel to negative rounding
+  // noise when eta = 1, k = 0.
+  const T b2_raw = (a2b2 - t0) / T(2);
+  const T b2 = b2_raw > T(0) ? b2_raw : T(0);
+  const T rs = ((a - c) * (a - c) + b2) / (t1 + t2);
   const T t3 = c2 * a2b2 + s2 * s2;
   const T t4 = t2 * s2;
-  const T rp = t3 + t4 > T(0) ? rs * (t3 - t4) / (t3 + t4) : rs;
+  const T rp = t3 + t4 > T(0) ? rs * ((a * c - s2) * (a * c - s2) + b2 * c2) / (t3 + t4) : rs;
   return (rs + rp) / T(2);
 }
 
@@ -243,7 +248,7 @@ class MicrofacetModel {
       // Visible normals: D_wo(wm) = G1(wo, wm) D(wm) (wo.wm) / cos_theta_o.
       return G1(p, wo, wm) * D(p, wm) / (T(4) * wo.z());
     } else {
-      return D(p, wm) * wm.z() / (T(4) * wo.dot(wm));
+      return D(p, wm) * wm.z() / (T(4) * HalfCos(wi, wo));  // wo.wm by HalfCos: never <= 0 by rounding
     }
   }
 

@@ -184,8 +184,9 @@ struct BlinnPhong {
   T Pdf(const T* p, const Vec3<T>& wo, const Vec3<T>& wi) const {
     if (!SameUpperHemisphere(wi, wo)) return T(0);
     const Vec3<T> h = HalfVector(wi, wo);
-    // wo.h = |wi + wo| / 2 >= (cos_theta_i + cos_theta_o) / 2 > 0 here.
-    return (p[3] + T(1)) * T(0.5 * kInvPi) * PowLobe(h.z(), p[3]) / (T(4) * wo.dot(h));
+    // wo.h = |wi + wo| / 2 >= (cos_theta_i + cos_theta_o) / 2 > 0 here, computed
+    // so: the dot product with h can round negative for opposite grazing pairs.
+    return (p[3] + T(1)) * T(0.5 * kInvPi) * PowLobe(h.z(), p[3]) / (T(4) * HalfCos(wi, wo));
   }
 
   template <typename T>

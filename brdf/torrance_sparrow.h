@@ -170,7 +170,7 @@ inline T TsNormFactor(const T& m) {
 // V-groove masking-shadowing (Torrance & Sparrow 1967; Blinn 1977 form).
 template <typename T>
 inline T VGrooveG(const Vec3<T>& wi, const Vec3<T>& wo, const Vec3<T>& h) {
-  const T wo_h = wo.dot(h);
+  const T wo_h = HalfCos(wi, wo);  // not wo.dot(h): it goes negative by rounding for opposite grazing pairs
   const T g_o = T(2) * h.z() * wo.z() / wo_h;
   const T g_i = T(2) * h.z() * wi.z() / wo_h;
   T g = T(1);
@@ -233,7 +233,7 @@ class VGrooveModel {
     if (!SameUpperHemisphere(wi, wo)) return Rgb<T>::Constant(T(0));
     const Vec3<T> h = HalfVector(wi, wo);
     const T scalar = D(p, h) * detail::VGrooveG(wi, wo, h) / (T(4) * wi.z() * wo.z());
-    const T cos_d = wi.dot(h);
+    const T cos_d = HalfCos(wi, wo);  // = wi.h, never negative by rounding
     Rgb<T> f;
     for (int c = 0; c < 3; ++c) f[c] = p[c] * FresnelDielectric(p[4 + c], cos_d) * scalar;
     return f;
@@ -243,7 +243,7 @@ class VGrooveModel {
   T Pdf(const T* p, const Vec3<T>& wo, const Vec3<T>& wi) const {
     if (!SameUpperHemisphere(wi, wo)) return T(0);
     const Vec3<T> h = HalfVector(wi, wo);
-    return D(p, h) * h.z() / (T(4) * wo.dot(h));
+    return D(p, h) * h.z() / (T(4) * HalfCos(wi, wo));  // wo.h, never <= 0 by rounding
   }
 
   template <typename T>

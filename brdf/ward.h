@@ -123,7 +123,7 @@ class WardModel {
     const T e = (hx * hx + hy * hy) / (h.z() * h.z());
     // p(h) / (4 wo.m) with cos theta_h = h.z / |h| (Walter 2005), in log form.
     const T cos_h = h.z() / len;
-    const T wo_h = wo.dot(h) / len;
+    const T wo_h = len / T(2);  // = wo.h for unit vectors; the dot product goes negative by rounding at grazing
     const T spec = exp(-e - log(ax) - log(ay) - T(3) * log(cos_h)) / (T(4 * kPi) * wo_h);
     return T(pd) * wi.z() * T(kInvPi) + T(ps) * spec;
   }

@@ -49,5 +49,6 @@ void RegisterSynth(CLI::App& app);
 void RegisterConvergence(CLI::App& app);  // cmd_convergence.cpp
 void RegisterCheck(CLI::App& app);   // cmd_check.cpp
 void RegisterAlbedo(CLI::App& app);  // cmd_albedo.cpp
+void RegisterStress(CLI::App& app);  // cmd_stress.cpp
 
 }  // namespace brdfkit::cli
