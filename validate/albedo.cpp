@@ -204,7 +204,10 @@ AlbedoValue HalfVectorAlbedo(const Bxdf<double>& bxdf, const double* p, const Ei
   std::int64_t evals = 0;
   double inner_error_sum = 0;
   const double phi_end = half ? kPi : 2 * kPi;
-  const double inner_tol = o.abs_tolerance / (2 * kPi);
+  // The estimate factor (outer + phi_end max inner) stays below the
+  // tolerance: half of it to each level.
+  const double factor = half ? 2.0 : 1.0;
+  const double inner_tol = o.abs_tolerance / (2 * factor * phi_end);
   const auto inner = [&](double phi) -> Eigen::Array3d {
     const double tmax = theta_max(phi);
     const double cp = std::cos(phi);
@@ -237,9 +240,8 @@ AlbedoValue HalfVectorAlbedo(const Bxdf<double>& bxdf, const double* p, const Ei
     if (!half) breaks.push_back(1.5 * kPi - std::asin(s));
   }
   double outer_err = 0;
-  Eigen::Array3d v = AdaptiveGaussKronrod(inner, 0, phi_end, breaks, o.abs_tolerance, o.max_subdivisions,
+  Eigen::Array3d v = AdaptiveGaussKronrod(inner, 0, phi_end, breaks, o.abs_tolerance / (2 * factor), o.max_subdivisions,
                                           &outer_err, &evals);
-  const double factor = half ? 2.0 : 1.0;
   out.value = v * factor;
   out.error = Eigen::Array3d::Constant(factor * (outer_err + phi_end * inner_error_sum));
   out.evals = evals;
@@ -259,39 +261,54 @@ AlbedoValue AlbedoAtMu(const Bxdf<double>& bxdf, const double* p, double mu, con
   return HalfVectorAlbedo(bxdf, p, wo, shape, o);
 }
 
+namespace {
+// Tolerance for E at mu inside E_avg: c tol max(1, (m0 / mu)^b) with
+// int_0^1 2 mu tol_E dmu = c tol (1 + m0^2 b / (2 - b)) = tol / 2 for
+// m0 = 0.3, b = 1.9, c = 0.5 / 2.71: grazing nodes, where the horizon cuts
+// the lobe and E is costly, carry little weight and get a loose target.
+double NodeTolerance(double tol, double mu) {
+  constexpr double kM0 = 0.3, kB = 1.9, kC = 0.5 / (1 + kM0 * kM0 * kB / (2 - kB));
+  return std::min(1e-3, kC * tol * (mu < kM0 ? std::pow(kM0 / mu, kB) : 1.0));
+}
+}  // namespace
+
 AlbedoValue AverageAlbedo(const Bxdf<double>& bxdf, const double* p, const LobeShape& shape,
                           const AlbedoQuadratureOptions& o) {
   AlbedoValue out;
-  double inner_err = 0;
   AlbedoQuadratureOptions io = o;
-  // An error in E at mu enters E_avg with weight 2 mu dmu (total 1).
-  io.abs_tolerance = 0.5 * o.abs_tolerance;
   io.max_evals = std::min<std::int64_t>(o.max_evals, 200000);
   // In s = ln(mu) the integrand 2 mu^2 E(e^s) is smooth: the mu ln(mu)
   // terms of E near grazing and the dip of width ~w at mu ~ w both become
   // features of unit scale. Below mu_min = 1e-4 w, E is at its grazing limit
   // and int_0^mu_min 2 mu E dmu = mu_min^2 E(mu_min).
   const double mu_min = std::max(1e-4 * std::min(shape.width, 1.0), 1e-12);
+  // E at mu is needed to NodeTolerance(tol, mu): its error enters with
+  // weight 2 mu dmu, so the sum is at most tol / 2; worst = max of
+  // error / tol_E over the nodes scales that bound (a node may miss or beat
+  // its target).
+  double worst = 0;
   const auto g = [&](double s) -> Eigen::Array3d {
     const double mu = std::exp(s);
-    // The error of E at mu enters with weight 2 mu^2 ds over |s0| < 30:
-    // 0.01 tol / mu^2 keeps the sum below 0.6 tol and makes grazing cheap.
     AlbedoQuadratureOptions is = io;
-    is.abs_tolerance = std::min(1e-3, std::max(io.abs_tolerance, 0.01 * o.abs_tolerance / (mu * mu)));
+    is.abs_tolerance = NodeTolerance(o.abs_tolerance, mu);
     const AlbedoValue e = AlbedoAtMu(bxdf, p, mu, shape, is);
     out.evals += e.evals;
-    inner_err = std::max(inner_err, 2 * mu * mu * e.error.maxCoeff());
+    worst = std::max(worst, e.error.maxCoeff() / is.abs_tolerance);
     return 2 * mu * mu * e.value;
   };
   const double s0 = std::log(mu_min), sw = std::log(std::min(shape.width, 1.0));
-  std::vector<double> breaks{sw - 2, sw + 2};
+  // Panels: below, across and above the lobe-width dip.
+  const std::vector<double> breaks{sw - 2, sw + 2};
   double err = 0;
   std::int64_t n = 0;
   out.value = AdaptiveGaussKronrod(g, s0, 0, breaks, 0.5 * o.abs_tolerance, o.max_subdivisions, &err, &n);
-  const AlbedoValue e_min = AlbedoAtMu(bxdf, p, mu_min, shape, io);
+  AlbedoQuadratureOptions mo = io;
+  mo.abs_tolerance = NodeTolerance(o.abs_tolerance, mu_min);
+  const AlbedoValue e_min = AlbedoAtMu(bxdf, p, mu_min, shape, mo);
   out.value += mu_min * mu_min * e_min.value;
   out.evals += e_min.evals;
-  out.error = Eigen::Array3d::Constant(err + std::abs(s0) * inner_err);
+  out.error = Eigen::Array3d::Constant(err + 0.5 * o.abs_tolerance * worst +
+                                       mu_min * mu_min * e_min.error.maxCoeff());
   return out;
 }
 
