@@ -188,7 +188,7 @@ void WriteReport(const std::string& path, const Scene& scene, const std::vector<
        Esc(scene.title.empty() ? scene.origin : scene.title) + "</title>\n<style>\n"
        "body{font-family:sans-serif;max-width:1000px;margin:2em auto;padding:0 1em;color:#222}\n"
        "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:4px 8px;text-align:left;"
-       "vertical-align:top}th{background:#f3f3f3}\n.ok{color:#1a7f37;font-weight:bold}.bad{color:#c62828;"
+       "vertical-align:top}th{background:#f3f3f3}td ul{min-width:18em}\n.ok{color:#1a7f37;font-weight:bold}.bad{color:#c62828;"
        "font-weight:bold}\nfigure{margin:1em 0}img.plot{max-width:100%;border:1px solid #ddd}figcaption{font-size:"
        "90%;color:#444}\nul{margin:0;padding-left:1.2em}code{background:#f3f3f3;padding:0 3px}\n</style></head>\n"
        "<body data-figures-rendered=\"pending\">\n";

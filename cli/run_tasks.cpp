@@ -295,7 +295,7 @@ TaskOutcome RunSynth(const TaskSpec& t, const RunContext& ctx) {
     for (const Slice& s : slices)
       series.push_back({"theta_i = " + FormatDouble(std::round(s.theta_i / kDegree * 10) / 10) + " deg", s.angle, s.f});
     validate::PolarPlot(dir.Abs("slices.svg"), "measured f_r (green), plane of incidence", "f_r [1/sr]", series,
-                        std::vector<bool>(series.size(), true));
+                        std::vector<bool>(series.size(), true), {}, true, 0);
     o.figures.push_back({"Synthetic measurement of " + m.name, dir.Rel("slices.svg"),
                          "In-plane samples; light from positive angles, the specular direction at negative angles."});
   }
@@ -371,7 +371,10 @@ TaskOutcome RunFit(const TaskSpec& t, const RunContext& ctx) {
   if (!slices.empty()) {
     std::vector<validate::Series> series;
     std::vector<bool> markers;
+    std::vector<int> colours;
     for (const Slice& s : slices) {
+      colours.push_back(int(colours.size() / 2));
+      colours.push_back(int(colours.size() / 2));
       const std::string label = "theta_i = " + FormatDouble(std::round(s.theta_i / kDegree * 10) / 10);
       series.push_back({label + " measured", s.angle, s.f});
       markers.push_back(true);
@@ -387,7 +390,7 @@ TaskOutcome RunFit(const TaskSpec& t, const RunContext& ctx) {
       markers.push_back(false);
     }
     validate::PolarPlot(dir.Abs("slices.svg"), "measured and fitted f_r (green), plane of incidence", "f_r [1/sr]",
-                        series, markers);
+                        series, markers, colours, true, 0);
     o.files.push_back(dir.Rel("slices.svg"));
     o.figures.push_back({"Fit " + t.name + ": measured against fitted", dir.Rel("slices.svg"),
                          "Points: data; lines: the fitted " + r.model.Spec() + ". Light from positive angles."});
@@ -426,7 +429,8 @@ TaskOutcome RunFit(const TaskSpec& t, const RunContext& ctx) {
                          "RMS relative residual", series, false, true);
       o.files.push_back(dir.Rel("residuals.svg"));
       o.figures.push_back({"Fit " + t.name + ": residuals", dir.Rel("residuals.svg"),
-                           "Per 5-degree bin of the half-vector angle theta_h, per channel."});
+                           "Per 5-degree bin of the half-vector angle theta_h, per channel; the model is evaluated at the nominal "
+                           "directions (without the instrument's apertures)."});
     }
   }
   HalfDiffImage(dir.Abs("halfdiff.svg"), "log10 f_r (green) of the fitted " + r.model.Spec() + ", phi_d = 90 deg",

@@ -225,33 +225,43 @@ void HeatMap(const std::string& svg_path, const std::string& title, const std::s
 }
 
 void PolarPlot(const std::string& svg_path, const std::string& title, const std::string& radius_label,
-               const std::vector<Series>& series, const std::vector<bool>& markers) {
-  if (markers.size() != series.size())
-    throw std::invalid_argument("polar plot '" + svg_path + "': one marker flag per series expected");
-  double rmax = 0;
+               const std::vector<Series>& series, const std::vector<bool>& markers, const std::vector<int>& colour,
+               bool log_radius, int decades) {
+  if (markers.size() != series.size() || (!colour.empty() && colour.size() != series.size()))
+    throw std::invalid_argument("polar plot '" + svg_path + "': one marker flag (and colour) per series expected");
+  double ymax = 0, ymin = INFINITY;
   for (const Series& s : series) {
     if (s.x.size() != s.y.size())
       throw std::invalid_argument("polar plot '" + svg_path + "': series '" + s.label + "' has mismatched sizes");
     for (std::size_t i = 0; i < s.x.size(); ++i)
-      if (std::isfinite(s.x[i]) && std::isfinite(s.y[i]) && s.y[i] > 0) rmax = std::max(rmax, s.y[i]);
+      if (std::isfinite(s.x[i]) && std::isfinite(s.y[i]) && s.y[i] > 0) {
+        ymax = std::max(ymax, s.y[i]);
+        ymin = std::min(ymin, s.y[i]);
+      }
   }
-  if (!(rmax > 0)) throw std::invalid_argument("polar plot '" + svg_path + "': no positive finite radii");
-  rmax *= 1.05;
+  if (!(ymax > 0)) throw std::invalid_argument("polar plot '" + svg_path + "': no positive finite radii");
+  // decades <= 0: from the power of ten below the smallest value, at most 6 decades.
+  if (decades <= 0) decades = std::clamp(int(std::ceil(std::log10(ymax) - std::floor(std::log10(ymin)))), 1, 6);
+  const double floor_y = std::pow(10.0, std::ceil(std::log10(ymax)) - decades);
+  const auto radius = [&](double y) { return log_radius ? std::max(0.0, std::log10(y / floor_y)) : y; };
+  const double rmax = std::max(radius(ymax), log_radius ? double(decades) : 0.0) * 1.05;
   constexpr double kPiLocal = 3.14159265358979323846;
 
   std::lock_guard<std::mutex> lock(PlplotMutex());
   SvgStream out(svg_path);
   plcol0(15);
   plschr(0, 0.8);
-  plenv(-rmax, rmax, -0.08 * rmax, rmax, 1, -2);  // equal scales, no box: the grid is drawn below
+  plenv(-rmax, rmax, -0.12 * rmax, 1.1 * rmax, 1, -2);  // equal scales, no box: the grid is drawn below
   pllab("", "", title.c_str());
-  // Grid: rings at quarters of the largest radius, spokes every 15 degrees.
+  // Grid: rings (decades on a log radius, quarters otherwise), spokes every 15 degrees.
   pllsty(2);
-  for (int k = 1; k <= 4; ++k) {
-    const double r = rmax * k / 4.0;
+  const int rings = log_radius ? std::max(1, decades) : 4;
+  for (int k = 1; k <= rings; ++k) {
+    const double r = log_radius ? double(k) : rmax / 1.05 * k / rings;
+    if (log_radius && r > rmax) break;
     plarc(0, 0, r, r, 0, 180, 0, 0);
     char buf[32];
-    std::snprintf(buf, sizeof buf, "%.3g", r);
+    std::snprintf(buf, sizeof buf, "%.3g", log_radius ? floor_y * std::pow(10.0, k) : r);
     plptex(r, -0.04 * rmax, 1, 0, 0.5, buf);
   }
   for (int deg = -90; deg <= 90; deg += 15) {
@@ -261,11 +271,12 @@ void PolarPlot(const std::string& svg_path, const std::string& title, const std:
     if (deg % 30 == 0) {
       char buf[16];
       std::snprintf(buf, sizeof buf, "%d", deg);
-      plptex(1.04 * xs[1], 1.02 * ys[1], 1, 0, 0.5, buf);
+      plptex(1.05 * xs[1], 1.03 * ys[1] + 0.01 * rmax, 1, 0, 0.5, buf);
     }
   }
   pllsty(1);
-  plptex(0, -0.07 * rmax, 1, 0, 0.5, (radius_label + " (radius); signed angle from the normal [deg]").c_str());
+  plptex(0, -0.1 * rmax, 1, 0, 0.5,
+         (radius_label + (log_radius ? ", log radius" : "") + "; angle from the normal in degrees").c_str());
   std::vector<PLINT> opts, colours, styles, symbol_colours;
   std::vector<PLFLT> widths, symbol_scales;
   std::vector<const char*> texts, symbols;
@@ -273,13 +284,14 @@ void PolarPlot(const std::string& svg_path, const std::string& title, const std:
   for (std::size_t s = 0; s < series.size(); ++s) {
     std::vector<double> x, y;
     for (std::size_t i = 0; i < series[s].x.size(); ++i) {
-      const double a = series[s].x[i], r = series[s].y[i];
-      if (!std::isfinite(a) || !std::isfinite(r) || r < 0) continue;
+      const double a = series[s].x[i], v = series[s].y[i];
+      if (!std::isfinite(a) || !std::isfinite(v) || v <= 0) continue;
+      const double r = radius(v);
       x.push_back(r * std::sin(a));
       y.push_back(r * std::cos(a));
     }
-    const PLINT colour = PLINT(s % 8) + 1;
-    plcol0(colour);
+    const PLINT c = PLINT((colour.empty() ? int(s) : colour[s]) % 8) + 1;
+    plcol0(c);
     plwidth(2.0);
     if (markers[s]) {
       if (!x.empty()) plpoin(PLINT(x.size()), x.data(), y.data(), 4);
@@ -287,13 +299,13 @@ void PolarPlot(const std::string& svg_path, const std::string& title, const std:
       plline(PLINT(x.size()), x.data(), y.data());
     }
     opts.push_back(markers[s] ? PL_LEGEND_SYMBOL : PL_LEGEND_LINE);
-    colours.push_back(colour);
+    colours.push_back(c);
     styles.push_back(1);
     widths.push_back(2.0);
-    symbol_colours.push_back(colour);
+    symbol_colours.push_back(c);
     symbol_scales.push_back(1.0);
     symbol_numbers.push_back(1);
-    symbols.push_back("#(728)");
+    symbols.push_back("#(228)");
     texts.push_back(series[s].label.c_str());
   }
   plwidth(1.0);
@@ -302,8 +314,8 @@ void PolarPlot(const std::string& svg_path, const std::string& title, const std:
     std::vector<PLINT> text_colours(texts.size(), 15);
     PLFLT lw, lh;
     plscol0a(0, 255, 255, 255, 0.85);
-    pllegend(&lw, &lh, PL_LEGEND_BACKGROUND | PL_LEGEND_BOUNDING_BOX, PL_POSITION_TOP | PL_POSITION_RIGHT | PL_POSITION_INSIDE,
-             0.02, 0.02, 0.08, 0, 15, 1, 0, 0, n, opts.data(), 1.0, 0.8, 2.0, 0.0, text_colours.data(), texts.data(),
+    pllegend(&lw, &lh, PL_LEGEND_BACKGROUND | PL_LEGEND_BOUNDING_BOX, PL_POSITION_TOP | PL_POSITION_LEFT | PL_POSITION_INSIDE,
+             0.0, 0.0, 0.05, 0, 15, 1, 0, 0, n, opts.data(), 1.0, 0.7, 2.0, 0.0, text_colours.data(), texts.data(),
              nullptr, nullptr, nullptr, nullptr, colours.data(), styles.data(), widths.data(), symbol_colours.data(),
              symbol_scales.data(), symbol_numbers.data(), symbols.data());
   }

@@ -30,8 +30,12 @@ void HeatMap(const std::string& svg_path, const std::string& title, const std::s
 // Polar plot of BRDF slices: each series gives signed angles from the
 // normal (radians, in [-pi/2, pi/2], x) and radii (y, >= 0); the normal
 // points up, angle a at (r sin a, r cos a). Series with markers[s] = true
-// are drawn as points (measurements), the others as lines (models).
+// are drawn as points (measurements), the others as lines (models);
+// colour[s] picks the palette entry (empty: one colour per series). With
+// log_radius the radius is log10(y / floor), floor = max(y) / 10^decades,
+// and values below the floor sit at the centre.
 void PolarPlot(const std::string& svg_path, const std::string& title, const std::string& radius_label,
-               const std::vector<Series>& series, const std::vector<bool>& markers);
+               const std::vector<Series>& series, const std::vector<bool>& markers,
+               const std::vector<int>& colour = {}, bool log_radius = false, int decades = 3);
 
 }  // namespace brdfkit::validate

@@ -1,0 +1,326 @@
+// `brdfkit run`: plans that compute only what the requested outputs need,
+// the content-keyed cache, malformed scenes rejected before any work, the
+// report in a headless browser, and Ctrl-C.
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <map>
+#include <regex>
+#include <thread>
+
+#include "tests/cli_util.h"
+
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+using brdfkit::test::Brdfkit;
+using brdfkit::test::CliRun;
+using brdfkit::test::FreshDir;
+using brdfkit::test::ReadText;
+using brdfkit::test::WriteText;
+
+// A small scene with every task type; `outputs` chooses what is wanted.
+json SmallScene(const json& outputs = nullptr) {
+  json s = json::parse(R"({
+    "title": "test scene",
+    "output": "out",
+    "materials": {
+      "plastic": {"model": "lambert+ggx", "params": {"lambert.albedo": [0.1, 0.2, 0.4], "ggx.alpha": 0.2, "ggx.f0": 0.04}},
+      "phong": {"model": "phong_original", "params": "ks=1,n=1"},
+      "fitted": {"fit": "fit_a"}
+    },
+    "instruments": {"gonio": {"type": "gonioreflectometer", "spec": {
+      "source": {"type": "collimated", "irradiance": 10},
+      "detector": {"angular_radius_deg": 0, "responsivity": 1e18, "exposure_time": 0.001},
+      "sample": {"area": 1e-4, "tilt_x_deg": 0, "tilt_y_deg": 0},
+      "plan": {"type": "in_plane", "theta_i_deg": {"start": 0, "stop": 60, "count": 3},
+               "theta_o_deg": {"start": -80, "stop": 80, "count": 33}}}}},
+    "tasks": [
+      {"name": "ggx_table", "type": "albedo", "model": "ggx", "axes": "mu:6,alpha:5:0.05:1", "formats": ["csv"]},
+      {"name": "beckmann_table", "type": "albedo", "model": "beckmann", "axes": "mu:6,alpha:5:0.05:1", "formats": ["csv"]},
+      {"name": "measure", "type": "synth", "material": "plastic", "instrument": "gonio", "seed": 3},
+      {"name": "fit_a", "type": "fit", "data": "measure", "model": "lambert+ggx", "starts": 2},
+      {"name": "fit_b", "type": "fit", "data": "measure", "model": "lambert+beckmann", "starts": 2},
+      {"name": "verdicts", "type": "check", "materials": ["phong", "fitted"], "sampling": false}
+    ]
+  })");
+  if (!outputs.is_null()) s["outputs"] = outputs;
+  return s;
+}
+
+std::map<std::string, std::string> PlanActions(const CliRun& r) {
+  std::map<std::string, std::string> out;
+  const json j = json::parse(r.out);
+  for (const json& p : j.at("plan")) out[p.at("task").get<std::string>()] = p.at("action").get<std::string>();
+  return out;
+}
+
+std::vector<std::string> PlanOrder(const CliRun& r) {
+  std::vector<std::string> out;
+  const json j = json::parse(r.out);
+  for (const json& p : j.at("plan"))
+    if (p.at("action").get<std::string>() != "skip") out.push_back(p.at("task").get<std::string>());
+  return out;
+}
+
+std::size_t IndexOf(const std::vector<std::string>& v, const std::string& x) {
+  return static_cast<std::size_t>(std::find(v.begin(), v.end(), x) - v.begin());
+}
+
+TEST(Run, DryRunOfAnAlbedoOnlySceneComputesNothingElse) {
+  const fs::path d = FreshDir("albedo-only");
+  WriteText(d / "scene.json", SmallScene({"ggx_table"}).dump());
+  const CliRun r = Brdfkit("run " + (d / "scene.json").string() + " --out " + (d / "out").string() + " --dry-run --json");
+  ASSERT_EQ(r.code, 0) << r.out;
+  const auto actions = PlanActions(r);
+  EXPECT_EQ(actions.at("ggx_table"), "run");
+  for (const char* other : {"beckmann_table", "measure", "fit_a", "fit_b", "verdicts"}) EXPECT_EQ(actions.at(other), "skip") << other;
+  EXPECT_FALSE(fs::exists(d / "out")) << "a dry run writes nothing";
+
+  // The real run: only the GGX table is made.
+  const CliRun run = Brdfkit("run " + (d / "scene.json").string() + " --out " + (d / "out").string() + " --quiet");
+  ASSERT_EQ(run.code, 0) << run.out;
+  EXPECT_TRUE(fs::exists(d / "out" / "ggx_table" / "albedo.csv"));
+  for (const char* other : {"beckmann_table", "measure", "fit_a", "fit_b", "verdicts"})
+    EXPECT_FALSE(fs::exists(d / "out" / other)) << other;
+  const json results = json::parse(ReadText(d / "out" / "results.json"));
+  ASSERT_EQ(results.at("tasks").size(), 1u);
+  EXPECT_EQ(results.at("tasks")[0].at("name"), "ggx_table");
+}
+
+TEST(Run, ACheckOfAFittedMaterialPullsInTheFitAndItsDataOnce) {
+  const fs::path d = FreshDir("deps");
+  WriteText(d / "scene.json", SmallScene({"verdicts", "fit_b"}).dump());
+  const CliRun r = Brdfkit("run " + (d / "scene.json").string() + " --out " + (d / "out").string() + " --dry-run --json");
+  ASSERT_EQ(r.code, 0) << r.out;
+  const auto actions = PlanActions(r);
+  EXPECT_EQ(actions.at("measure"), "run");
+  EXPECT_EQ(actions.at("fit_a"), "run");
+  EXPECT_EQ(actions.at("fit_b"), "run");
+  EXPECT_EQ(actions.at("verdicts"), "run");
+  EXPECT_EQ(actions.at("ggx_table"), "skip");
+  EXPECT_EQ(actions.at("beckmann_table"), "skip");
+  const auto order = PlanOrder(r);
+  ASSERT_EQ(order.size(), 4u) << "measure is synthesised once for both fits";
+  EXPECT_LT(IndexOf(order, "measure"), IndexOf(order, "fit_a"));
+  EXPECT_LT(IndexOf(order, "measure"), IndexOf(order, "fit_b"));
+  EXPECT_LT(IndexOf(order, "fit_a"), IndexOf(order, "verdicts"));
+}
+
+TEST(Run, SecondRunRecomputesNothingAndAChangeRecomputesOnlyWhatDependsOnIt) {
+  const fs::path d = FreshDir("cache");
+  const std::string scene = (d / "scene.json").string(), out = (d / "out").string();
+  WriteText(scene, SmallScene().dump());
+  const CliRun first = Brdfkit("run " + scene + " --out " + out + " --quiet");
+  ASSERT_EQ(first.code, 0) << first.out;
+  const auto csv_time = fs::last_write_time(d / "out" / "measure" / "data.csv");
+  const auto fit_time = fs::last_write_time(d / "out" / "fit_a" / "fit.json");
+
+  // Unchanged scene: everything up to date, no file rewritten.
+  const CliRun plan = Brdfkit("run " + scene + " --out " + out + " --dry-run --json");
+  for (const auto& [task, action] : PlanActions(plan)) EXPECT_EQ(action, "cached") << task;
+  const CliRun second = Brdfkit("run " + scene + " --out " + out + " --quiet");
+  ASSERT_EQ(second.code, 0) << second.out;
+  EXPECT_EQ(fs::last_write_time(d / "out" / "measure" / "data.csv"), csv_time);
+  EXPECT_EQ(fs::last_write_time(d / "out" / "fit_a" / "fit.json"), fit_time);
+  const json results = json::parse(ReadText(d / "out" / "results.json"));
+  for (const json& t : results.at("tasks")) EXPECT_EQ(t.at("status").get<std::string>(), "cached");
+
+  // A new material colour: the synth, both fits and the check of the fitted
+  // material are out of date; the albedo tables are not.
+  json s = SmallScene();
+  s["materials"]["plastic"]["params"]["lambert.albedo"] = json::array({0.1, 0.2, 0.5});
+  WriteText(scene, s.dump());
+  const auto actions = PlanActions(Brdfkit("run " + scene + " --out " + out + " --dry-run --json"));
+  EXPECT_EQ(actions.at("ggx_table"), "cached");
+  EXPECT_EQ(actions.at("beckmann_table"), "cached");
+  for (const char* t : {"measure", "fit_a", "fit_b", "verdicts"}) EXPECT_EQ(actions.at(t), "run") << t;
+
+  // A deleted output is recomputed.
+  WriteText(scene, SmallScene().dump());
+  fs::remove(d / "out" / "ggx_table" / "albedo.csv");
+  const auto again = PlanActions(Brdfkit("run " + scene + " --out " + out + " --dry-run --json"));
+  EXPECT_EQ(again.at("ggx_table"), "run");
+  EXPECT_EQ(again.at("beckmann_table"), "cached");
+}
+
+TEST(Run, TheFitInTheSceneRecoversTheSynthesisedMaterial) {
+  const fs::path d = FreshDir("fit");
+  WriteText(d / "scene.json", SmallScene({"fit_a"}).dump());
+  const CliRun r = Brdfkit("run " + (d / "scene.json").string() + " --out " + (d / "out").string() + " --quiet");
+  ASSERT_EQ(r.code, 0) << r.out;
+  const json fit = json::parse(ReadText(d / "out" / "fit_a" / "fit.json"));
+  // Point apertures, no noise: the data is the model itself.
+  EXPECT_NEAR(fit.at("params").at("ggx.alpha").get<double>(), 0.2, 1e-6);
+  EXPECT_NEAR(fit.at("params").at("lambert.albedo")[2].get<double>(), 0.4, 1e-6);
+  EXPECT_NEAR(fit.at("params").at("ggx.f0")[0].get<double>(), 0.04, 1e-6);
+  // The fit result is usable as a model anywhere.
+  const CliRun e = Brdfkit("eval --model fit:" + (d / "out" / "fit_a" / "fit.json").string() +
+                           " --wi 0,0,1 --wo 0,0,1 --json");
+  ASSERT_EQ(e.code, 0) << e.out;
+}
+
+// Each malformed scene: exit 2, a message naming the file and the key path
+// (or line), and no output folder: nothing started.
+TEST(Run, MalformedScenesAreRejectedBeforeAnyWork) {
+  const fs::path d = FreshDir("malformed");
+  struct Case {
+    std::string name, text, expect;
+  };
+  json unknown_key = SmallScene();
+  unknown_key["tasks"][3]["metirc"] = "l2";
+  json wrong_type = SmallScene();
+  wrong_type["tasks"][0]["axes"] = 32;
+  json missing_file = SmallScene();
+  missing_file["materials"]["measured"] = {{"merl", "no-such-file.binary"}};
+  json check_table = SmallScene();
+  WriteText(d / "t.csv", "theta_i,phi_i,theta_o,phi_o,f\n0,0,0,0,0.3\n");
+  check_table["materials"]["tab"] = {{"table", "t.csv"}};
+  check_table["tasks"][5]["materials"] = json::array({"tab"});
+  json bad_axis = SmallScene();
+  bad_axis["tasks"][0]["axes"] = "mu:8,roughness:4";
+  json bad_data = SmallScene();
+  bad_data["tasks"][3]["data"] = "ggx_table";
+  json bad_param = SmallScene();
+  bad_param["materials"]["plastic"]["params"]["ggx.alpha"] = -0.1;
+  json typo_model = SmallScene();
+  typo_model["tasks"][4]["model"] = "lambert+bekmann";
+  json cycle = SmallScene();
+  cycle["tasks"][2]["material"] = "fitted";
+  json unknown_output = SmallScene({"nothing_like_this"});
+  const std::vector<Case> cases = {
+      {"bad_json", "{\n  \"tasks\": [\n    {\"name\": \"a\",, }\n  ]\n}\n", "line 3"},
+      {"unknown_key", unknown_key.dump(2), "tasks[3].metirc: unknown key"},
+      {"wrong_type", wrong_type.dump(2), "tasks[0].axes: expected a string"},
+      {"missing_file", missing_file.dump(2), "materials.measured.merl: file"},
+      {"check_table", check_table.dump(2), "tasks[5].materials[0]"},
+      {"bad_axis", bad_axis.dump(2), "tasks[0].axes: 'roughness' is not a parameter"},
+      {"bad_data", bad_data.dump(2), "tasks[3].data"},
+      {"bad_param", bad_param.dump(2), "materials.plastic.params"},
+      {"typo_model", typo_model.dump(2), "tasks[4].model"},
+      {"cycle", cycle.dump(2), "circular dependency"},
+      {"unknown_output", unknown_output.dump(2), "outputs[0]: no task named 'nothing_like_this'"},
+  };
+  for (const Case& c : cases) {
+    const fs::path scene = d / (c.name + ".json");
+    WriteText(scene, c.text);
+    const CliRun r = Brdfkit("run " + scene.string() + " --out " + (d / ("out-" + c.name)).string());
+    EXPECT_EQ(r.code, 2) << c.name << ": " << r.out;
+    EXPECT_NE(r.out.find(scene.string()), std::string::npos) << c.name << " names the file: " << r.out;
+    EXPECT_NE(r.out.find(c.expect), std::string::npos) << c.name << ": expected '" << c.expect << "' in " << r.out;
+    EXPECT_FALSE(fs::exists(d / ("out-" + c.name))) << c.name << ": work started";
+  }
+  const CliRun missing = Brdfkit("run " + (d / "absent.json").string());
+  EXPECT_EQ(missing.code, 2);
+  EXPECT_NE(missing.out.find("absent.json: scene file not found"), std::string::npos) << missing.out;
+}
+
+TEST(Run, ShippedExamplesParseAndTheDefaultIsTheBuiltInScene) {
+  for (const auto& e : fs::directory_iterator(fs::path(BRDFKIT_SOURCE_DIR) / "examples")) {
+    if (e.path().extension() != ".json" || e.path().filename() == "scene.schema.json") continue;
+    const CliRun r = Brdfkit("run " + e.path().string() + " --dry-run --out /nonexistent-dir-brdfkit");
+    EXPECT_EQ(r.code, 0) << e.path() << ": " << r.out;
+  }
+  const CliRun builtin = Brdfkit("run --dry-run --json --out /nonexistent-dir-brdfkit");
+  const CliRun file = Brdfkit("run " + std::string(BRDFKIT_SOURCE_DIR) + "/examples/default.json --dry-run --json --out /nonexistent-dir-brdfkit");
+  ASSERT_EQ(builtin.code, 0) << builtin.out;
+  ASSERT_EQ(file.code, 0) << file.out;
+  const json a = json::parse(builtin.out).at("plan"), b = json::parse(file.out).at("plan");
+  ASSERT_EQ(a.size(), b.size());
+  for (std::size_t k = 0; k < a.size(); ++k) {
+    EXPECT_EQ(a[k].at("task"), b[k].at("task"));
+    EXPECT_EQ(a[k].at("key"), b[k].at("key")) << "same inputs, same cache key";
+  }
+}
+
+// Headless Chromium loads report.html from disk (no network) and the page's
+// own script counts the figures that decoded with a size.
+TEST(Run, EveryFigureOfTheReportRendersInAHeadlessBrowser) {
+  const char* browser = nullptr;
+  for (const char* b : {"/usr/bin/chromium", "/usr/bin/chromium-browser", "/usr/bin/google-chrome"})
+    if (fs::exists(b)) browser = b;
+  ASSERT_NE(browser, nullptr) << "Chromium is needed for this test (bash .ci/setup installs it)";
+  const fs::path d = FreshDir("report");
+  json s = SmallScene();
+  s["tasks"].push_back({{"name", "integrators"}, {"type", "convergence"}, {"quick", true}});
+  WriteText(d / "scene.json", s.dump());
+  const CliRun r = Brdfkit("run " + (d / "scene.json").string() + " --out " + (d / "out").string() + " --quiet");
+  ASSERT_EQ(r.code, 0) << r.out;
+  const std::string html = ReadText(d / "out" / "report.html");
+  std::size_t figures = 0;
+  for (std::size_t p = html.find("<img class=\"plot\""); p != std::string::npos; p = html.find("<img class=\"plot\"", p + 1))
+    ++figures;
+  EXPECT_GE(figures, 9u) << "2 albedo tables x 2, synth slices, 2 fits x 4 (some), convergence";
+  EXPECT_EQ(html.find("http://"), std::string::npos) << "self-contained: no links to the network";
+  EXPECT_EQ(html.find("https://"), std::string::npos);
+  const std::string cmd = std::string(browser) +
+                          " --headless --no-sandbox --disable-gpu --disable-quic --no-first-run "
+                          "--disable-background-networking --disable-component-update --disable-sync "
+                          "--user-data-dir=" + (d / "profile").string() +
+                          " --virtual-time-budget=10000 --dump-dom file://" + (d / "out" / "report.html").string() +
+                          " 2>/dev/null";
+  FILE* pipe = popen(cmd.c_str(), "r");
+  ASSERT_NE(pipe, nullptr);
+  std::string dom;
+  char buf[4096];
+  std::size_t n;
+  while ((n = fread(buf, 1, sizeof buf, pipe)) > 0) dom.append(buf, n);
+  pclose(pipe);
+  const std::string want = "data-figures-rendered=\"" + std::to_string(figures) + "/" + std::to_string(figures) + "\"";
+  EXPECT_NE(dom.find(want), std::string::npos) << "expected " << want << " in the rendered page; body starts: "
+                                               << dom.substr(dom.find("<body"), 200);
+}
+
+// Ctrl-C during a long task: exit 130, nothing half-written, finished tasks
+// kept, and the next run resumes from them.
+TEST(Run, InterruptStopsCleanly) {
+  const fs::path d = FreshDir("interrupt");
+  json s = SmallScene({"ggx_table", "integrators"});
+  s["tasks"].push_back({{"name", "integrators"}, {"type", "convergence"}, {"quick", false}});
+  WriteText(d / "scene.json", s.dump());
+  const fs::path out = d / "out";
+  const pid_t pid = fork();
+  ASSERT_GE(pid, 0);
+  if (pid == 0) {
+    const std::string scene = (d / "scene.json").string(), o = out.string();
+    if (!freopen("/dev/null", "w", stderr)) _exit(126);
+    execl(BRDFKIT_EXE, BRDFKIT_EXE, "run", scene.c_str(), "--out", o.c_str(), static_cast<char*>(nullptr));
+    _exit(127);
+  }
+  // Wait until the albedo table is done and the convergence study has started.
+  const auto t0 = std::chrono::steady_clock::now();
+  while (!fs::exists(out / ".cache" / "ggx_table.json") &&
+         std::chrono::steady_clock::now() - t0 < std::chrono::seconds(60))
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  kill(pid, SIGINT);
+  int status = 0;
+  waitpid(pid, &status, 0);
+  ASSERT_TRUE(WIFEXITED(status));
+  EXPECT_EQ(WEXITSTATUS(status), 130);
+  EXPECT_FALSE(fs::exists(out / "results.json"));
+  EXPECT_FALSE(fs::exists(out / "report.html"));
+  for (const auto& e : fs::recursive_directory_iterator(out))
+    EXPECT_EQ(e.path().filename().string().find(".tmp-"), std::string::npos) << "left behind: " << e.path();
+  const auto actions = PlanActions(Brdfkit("run " + (d / "scene.json").string() + " --out " + out.string() + " --dry-run --json"));
+  EXPECT_EQ(actions.at("ggx_table"), "cached");
+  EXPECT_EQ(actions.at("integrators"), "run");
+}
+
+TEST(Run, NoProgressBarsWhenStderrIsNotATerminal) {
+  const fs::path d = FreshDir("quiet");
+  WriteText(d / "scene.json", SmallScene({"ggx_table"}).dump());
+  const CliRun r = Brdfkit("run " + (d / "scene.json").string() + " --out " + (d / "out").string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_EQ(r.out.find('\r'), std::string::npos);
+  EXPECT_EQ(r.out.find("left"), std::string::npos);
+}
+
+}  // namespace

@@ -1,0 +1,56 @@
+// Running the built command-line tool from tests: exit code and output.
+#pragma once
+
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <array>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+
+namespace brdfkit::test {
+
+struct CliRun {
+  int code;
+  std::string out;  // stdout and stderr
+};
+
+// Runs `brdfkit ARGS` through the shell (so ARGS may redirect or cd first
+// with a "cd DIR && " prefix given as `pre`).
+inline CliRun Brdfkit(const std::string& args, const std::string& pre = "") {
+  const std::string cmd = pre + std::string(BRDFKIT_EXE) + " " + args + " 2>&1";
+  FILE* pipe = popen(cmd.c_str(), "r");
+  CliRun r{-1, ""};
+  if (!pipe) return r;
+  std::array<char, 4096> buf;
+  std::size_t n;
+  while ((n = fread(buf.data(), 1, buf.size(), pipe)) > 0) r.out.append(buf.data(), n);
+  const int status = pclose(pipe);
+  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  return r;
+}
+
+inline std::string ReadText(const std::filesystem::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  std::ostringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+inline void WriteText(const std::filesystem::path& p, const std::string& text) {
+  std::ofstream out(p, std::ios::binary);
+  out << text;
+}
+
+// A fresh empty folder under the system temporary folder.
+inline std::filesystem::path FreshDir(const std::string& name) {
+  const auto d = std::filesystem::temp_directory_path() / ("brdfkit-test-" + name + "-" + std::to_string(::getpid()));
+  std::filesystem::remove_all(d);
+  std::filesystem::create_directories(d);
+  return d;
+}
+
+}  // namespace brdfkit::test
