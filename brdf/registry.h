@@ -16,6 +16,7 @@
 #include "brdf/ashikhmin_shirley.h"
 #include "brdf/kajiya.h"
 #include "brdf/he.h"
+#include "brdf/poulin_fournier.h"
 #include "brdf/merl.h"
 
 namespace brdfkit {
@@ -43,6 +44,7 @@ using RegisteredModels = std::tuple<
     AshikhminShirley,
     Kajiya,
     He,
+    PoulinFournier,
     Merl>;
 
 }  // namespace brdfkit
