@@ -43,12 +43,17 @@
 // terms, from g of about 20 upwards) and 10 w away from m = 1, the sum is
 // replaced by the integral of the same smooth function of m over +-12 w by a
 // 192-point composite Gauss-Legendre rule: by Poisson summation the
-// difference is of order exp(-2 pi^2 w^2) < 1e-100 relative, and the rule's
-// own error is below 1e-15 (measured against direct long-double sums,
-// physical_models_test.cpp). This keeps g up to ~1e6 (sigma_0 / lambda ~ 100)
-// at constant cost. For g >> 1 the result tends to the geometric-optics limit
-// |F|^2 S D_Beckmann(alpha = 2 sigma / tau) / (4 cos_i cos_o), which the tests
-// check.
+// difference is of order exp(-2 pi^2 w^2) < 1e-100 relative. What remains is
+// rounding: l_m is formed from numbers of size g |ln g|, so the result carries
+// a relative error of about 1e-16 g (|ln g| + 1) (measured against long-double
+// direct sums for g from 1e-6 to 2e4: within 1e-15 g (|ln g| + 1), and below
+// 1e-13 for g < 20). The cost is constant in g, up to ~1e6 (sigma_0 / lambda
+// ~ 100). For g >> 1 the result tends to the geometric-optics limit
+// |F|^2 S D_Beckmann(alpha = 2 sigma / tau) / (4 cos_i cos_o), with relative
+// corrections of order (1 + tan^2(theta_m) / alpha^2)^2 / g, which the tests
+// check. With small slopes at normal incidence the directional-diffuse
+// albedo plus the specular fraction equals F0 to 2e-6 (the power the
+// Kirchhoff model takes from the coherent beam goes into rho_dd).
 //
 // The specular term rho_sp = |F(theta_i)|^2 e^-g S Delta / (cos_i d omega_i)
 // (eq. 6) is a Dirac delta about the mirror direction: it is NOT part of Eval

@@ -122,6 +122,39 @@ TEST(He, SpecularReflectanceIsFresnelTimesDebyeWaller) {
   EXPECT_NEAR(r[1], FresnelDielectric(1.5, wi.z()) * s * std::exp(-std::pow(4 * kPi * sigma * wi.z() / 0.55, 2)), 1e-15);
 }
 
+// Power bookkeeping of the Kirchhoff series: with small slopes (tau >>
+// sigma_0, so S = 1 and sigma = sigma_0 near the normal) light arriving along
+// the normal leaves either coherently, F0 e^-g, or in rho_dd, F0 (1 - e^-g):
+// int rho_dd cos + specular fraction = F0.
+TEST(He, DirectionalDiffusePlusSpecularConservesTheFresnelPower) {
+  const Model m = Model::Parse("he");
+  const auto b = m.Make<double>();
+  const Eigen::Vector3d n(0, 0, 1);
+  const validate::GaussLegendre gl(24);
+  for (const char* text : {"sigma_0=0.02,tau=5", "sigma_0=0.05,tau=5", "sigma_0=0.1,tau=10", "sigma_0=0.05,tau=20"}) {
+    const std::vector<double> p = ParseParams(m.Info(), std::string(text) + ",n=1.5:2:1.2,k=0:1:3,a=0");
+    const Rgb<double> spec = He::SpecularReflectance(p.data(), n);
+    // Isotropic model seen along the normal: 2 pi int f cos sin d theta, in
+    // panels graded geometrically towards the normal where the lobe sits.
+    Rgb<double> albedo = Rgb<double>::Zero();
+    std::vector<double> breaks = {0.0};
+    for (double t = 1e-5; t < kPi / 2; t *= 2) breaks.push_back(t);
+    breaks.push_back(kPi / 2);
+    for (std::size_t k = 0; k + 1 < breaks.size(); ++k)
+      for (int i = 0; i < gl.size(); ++i) {
+        const double t = breaks[k] + (breaks[k + 1] - breaks[k]) * gl.node01(i);
+        const double w = 2 * kPi * (breaks[k + 1] - breaks[k]) * gl.weight01(i) * std::cos(t) * std::sin(t);
+        albedo += w * b->Eval(p.data(), DirectionFromAngles(t, 0.3), n);
+      }
+    for (int c = 0; c < 3; ++c) {
+      const double dd = albedo[c];
+      const double f0 = FresnelConductor(p[2 + c], p[5 + c], 1.0);
+      EXPECT_NEAR(dd + spec[c], f0, 2e-6 * f0) << text << " channel " << c << " dd " << dd << " spec " << spec[c];
+      EXPECT_GT(dd, 0.1 * f0);
+    }
+  }
+}
+
 // Shadowing is Smith's with Gaussian slopes of Beckmann alpha = 2 sigma_0 / tau
 // times the paper's factor (1 - erfc(nu) / 2); checked against microfacet.h's
 // independent Beckmann Lambda.
