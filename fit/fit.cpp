@@ -301,8 +301,28 @@ class Engine {
     if (n_ > 32)
       throw std::invalid_argument("model '" + info.name + "' has " + std::to_string(n_) +
                                   " packed parameters; fitting supports at most 32");
-    jet_ = n_ <= 8 ? 8 : n_ <= 16 ? 16 : 32;
     b_ = model.Make<double>();
+    // Derivative slots: one per scalar parameter and one per colour
+    // parameter, shared by its r, g, b slots. Channel c of f_r depends only
+    // on slot c of each colour parameter (checked below), so the shared
+    // slot's derivative in channel c is the derivative by the c slot: Jets
+    // of 3 slots instead of 7 for lambert+ggx.
+    for (const ParamInfo& p : info.params)
+      for (int c = 0; c < (p.colour ? 3 : 1); ++c) {
+        slot_.push_back(n_slots_);
+        channel_.push_back(p.colour ? c : -1);
+        if (c == (p.colour ? 2 : 0)) ++n_slots_;
+      }
+    const bool shared = n_slots_ < n_ && ChannelsSeparate(model);
+    if (!shared) {
+      for (std::size_t k = 0; k < n_; ++k) {
+        slot_[k] = k;
+        channel_[k] = -1;
+      }
+      n_slots_ = n_;
+    }
+    jet_ = n_slots_ <= 4 ? 4 : n_slots_ <= 8 ? 8 : n_slots_ <= 16 ? 16 : 32;
+    if (jet_ == 4) b4_ = MakeJet4(model);
     if (jet_ == 8) b8_ = MakeJet8(model);
     if (jet_ == 16) b16_ = MakeJet16(model);
     if (jet_ == 32) b32_ = MakeJet32(model);
@@ -367,6 +387,7 @@ class Engine {
   bool EvalJacobian(const double* u, const Prepared& d, std::size_t begin, std::size_t end, double* r,
                     double* jac) const {
     switch (jet_) {
+      case 4: return EvalJet<4>(*b4_, u, d, begin, end, r, jac);
       case 8: return EvalJet<8>(*b8_, u, d, begin, end, r, jac);
       case 16: return EvalJet<16>(*b16_, u, d, begin, end, r, jac);
       default: return EvalJet<32>(*b32_, u, d, begin, end, r, jac);
@@ -377,8 +398,8 @@ class Engine {
   template <int N>
   bool EvalJet(const Bxdf<Jet<N>>& b, const double* u, const Prepared& d, std::size_t begin, std::size_t end,
                double* r, double* jac) const {
-    std::array<Jet<N>, N> uj, pj;
-    for (std::size_t k = 0; k < n_; ++k) uj[k] = Jet<N>(u[k], static_cast<int>(k));
+    std::array<Jet<N>, 32> uj, pj;
+    for (std::size_t k = 0; k < n_; ++k) uj[k] = Jet<N>(u[k], static_cast<int>(slot_[k]));
     ToUser(uj.data(), pj.data());
     for (std::size_t q = begin; q < end; ++q) {
       Jet<N> res[3];
@@ -389,8 +410,9 @@ class Engine {
         if (!std::isfinite(r[row])) return false;
         if (jac) {
           for (std::size_t k = 0; k < n_; ++k) {
-            jac[row * n_ + k] = res[c].v[k];
-            if (!std::isfinite(res[c].v[k])) return false;
+            const double v = channel_[k] < 0 || channel_[k] == c ? res[c].v[slot_[k]] : 0.0;
+            if (!std::isfinite(v)) return false;
+            jac[row * n_ + k] = v;
           }
         }
       }
@@ -398,14 +420,58 @@ class Engine {
     return true;
   }
 
+  // Whether channel c of f_r has zero derivative by every colour slot of
+  // another channel, at parameter points spread over the bounds and
+  // direction pairs over the hemisphere (full Jets of every packed slot).
+  template <int N>
+  bool ChannelsSeparateAt(const Bxdf<Jet<N>>& b, const ModelInfo& info) const {
+    std::mt19937_64 rng(7);
+    std::uniform_real_distribution<double> uni(0.0, 1.0);
+    for (int trial = 0; trial < 16; ++trial) {
+      std::array<Jet<N>, N> pj;
+      std::size_t k = 0;
+      for (const ParamInfo& p : info.params)
+        for (int c = 0; c < (p.colour ? 3 : 1); ++c, ++k) {
+          // The defaults, then random points of the multi-start ranges.
+          double v = p.default_value;
+          if (trial > 0 && p.scale == ParamInfo::Scale::kLog && p.default_value > 0) {
+            const double l = std::max(p.lower, p.default_value / 30), h = std::min(p.upper, p.default_value * 30);
+            v = std::exp(std::log(l) + uni(rng) * (std::log(h) - std::log(l)));
+          } else if (trial > 0) {
+            v = p.lower + uni(rng) * (p.upper - p.lower);
+          }
+          pj[k] = Jet<N>(v, static_cast<int>(k));
+        }
+      const double ti = std::acos(uni(rng)), to = std::acos(uni(rng)), ph = 2 * kPi * uni(rng);
+      const Vec3<Jet<N>> wi(Jet<N>(std::sin(ti)), Jet<N>(0.0), Jet<N>(std::cos(ti)));
+      const Vec3<Jet<N>> wo(Jet<N>(std::sin(to) * std::cos(ph)), Jet<N>(std::sin(to) * std::sin(ph)),
+                            Jet<N>(std::cos(to)));
+      const Rgb<Jet<N>> f = b.Eval(pj.data(), wi, wo);
+      for (int c = 0; c < 3; ++c)
+        for (std::size_t j = 0; j < n_; ++j)
+          if (channel_[j] >= 0 && channel_[j] != c && f[c].v[j] != 0.0) return false;
+    }
+    return true;
+  }
+  bool ChannelsSeparate(const Model& model) const {
+    const ModelInfo& info = model.Info();
+    if (n_ <= 8) return ChannelsSeparateAt<8>(*MakeJet8(model), info);
+    if (n_ <= 16) return ChannelsSeparateAt<16>(*MakeJet16(model), info);
+    return ChannelsSeparateAt<32>(*MakeJet32(model), info);
+  }
+
   Model model_;
   Metric metric_;
   Loss loss_;
   double loss_scale_;
   std::size_t n_ = 0;
+  std::vector<std::size_t> slot_;  // derivative slot of each packed parameter
+  std::vector<int> channel_;       // its channel when the slot is shared by r, g, b; else -1
+  std::size_t n_slots_ = 0;
   int jet_ = 8;
   std::vector<bool> log_;
   std::unique_ptr<Bxdf<double>> b_;
+  std::unique_ptr<Bxdf<Jet<4>>> b4_;
   std::unique_ptr<Bxdf<Jet<8>>> b8_;
   std::unique_ptr<Bxdf<Jet<16>>> b16_;
   std::unique_ptr<Bxdf<Jet<32>>> b32_;
@@ -847,20 +913,24 @@ Result Fit(const Model& model, const Dataset& data, const Options& o) {
       if (!why.empty()) {
         res.covariance_message = "no uncertainty: the problem is rank deficient: " + why;
       } else {
-        ceres::Covariance::Options co;
-        co.num_threads = std::max(1, o.num_threads);
-        co.algorithm_type = ceres::SPARSE_QR;
-        ceres::Covariance cov(co);
-        std::vector<std::pair<const double*, const double*>> blocks = {{u.data(), u.data()}};
-        Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> cu(n, n);
-        if (!cov.Compute(blocks, &problem) || !cov.GetCovarianceBlock(u.data(), u.data(), cu.data())) {
+        // Covariance (J^T J)^-1 of the internal parameters from the dense
+        // n x n normal matrix: the estimator ceres::Covariance computes, without
+        // its sparse QR of the whole m x n Jacobian. Scaled to unit diagonal
+        // first (the rank test above bounds its condition number by 1e12).
+        const Eigen::VectorXd unit = jtj.diagonal().cwiseSqrt().cwiseInverse();
+        const Eigen::MatrixXd a = unit.asDiagonal() * jtj * unit.asDiagonal();
+        const Eigen::LDLT<Eigen::MatrixXd> ldlt(a);
+        const auto nn = static_cast<Eigen::Index>(n);
+        const Eigen::MatrixXd cu =
+            unit.asDiagonal() * ldlt.solve(Eigen::MatrixXd::Identity(nn, nn)) * unit.asDiagonal();
+        if (ldlt.info() != Eigen::Success || !ldlt.isPositive() || !cu.allFinite()) {
           res.covariance_message =
               "no uncertainty: the covariance could not be computed (the Jacobian is numerically rank deficient)";
         } else {
           // Back to the user's parameters: dp/du = p for log-scale ones.
           Eigen::VectorXd jd(n);
           for (std::size_t k = 0; k < n; ++k) jd(k) = engine.log_mask()[k] ? res.params[k] : 1.0;
-          Eigen::MatrixXd cp = jd.asDiagonal() * Eigen::MatrixXd(cu) * jd.asDiagonal();
+          Eigen::MatrixXd cp = jd.asDiagonal() * cu * jd.asDiagonal();
           // Without measured sigma the residual variance sets the scale.
           if (!sigma) cp *= res.chi2_reduced;
           res.correlation.resize(n, n);

@@ -1,12 +1,16 @@
 // Fitting BRDF models to tabulated reflectance with Ceres.
 //
 // Residuals are differentiated automatically through the templated models
-// (ceres::Jet), grouped in blocks of a few hundred samples. Parameters whose
+// (ceres::Jet), grouped in blocks of a few hundred samples; one model
+// evaluation gives all three channels, and the r, g, b slots of a colour
+// parameter share one Jet derivative (channel c depends only on slot c,
+// checked numerically per model; full Jets otherwise). Parameters whose
 // ParamInfo scale is kLog (roughness, exponents) are optimised as log(p) so
 // that values spread over orders of magnitude converge; bounds from the
 // ParamInfo table go to the problem (SetParameterLowerBound/UpperBound), in
-// the transformed space. Uncertainties come from ceres::Covariance, mapped
-// back to the user's parameters through the Jacobian of the transform.
+// the transformed space. Uncertainties are (J^T J)^-1 (the estimator of
+// ceres::Covariance) from the dense normal matrix of the few parameters,
+// mapped back to the user's parameters through the Jacobian of the transform.
 //
 // Metrics (residual of one sample and channel, model f, reference g):
 //   l2        f - g
