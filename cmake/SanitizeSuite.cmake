@@ -1,0 +1,26 @@
+# ctest stage: the whole test suite built with AddressSanitizer and
+# UndefinedBehaviorSanitizer (BRDFKIT_SANITIZE) in its own tree, then run.
+# -DSOURCE_DIR=<repo> -DBINARY_DIR=<tree> [-DJOBS=2]
+if(NOT JOBS)
+  set(JOBS 2)
+endif()
+execute_process(COMMAND ${CMAKE_COMMAND} -S ${SOURCE_DIR} -B ${BINARY_DIR} -DCMAKE_BUILD_TYPE=Release
+                        -DBRDFKIT_SANITIZE=ON -DBRDFKIT_BUILD_BENCH=OFF -DBRDFKIT_INSTALL=OFF
+                        -DBRDFKIT_ROBUSTNESS_TESTS=OFF
+                RESULT_VARIABLE rc)
+if(NOT rc EQUAL 0)
+  message(FATAL_ERROR "sanitizers: configuring ${BINARY_DIR} failed")
+endif()
+execute_process(COMMAND ${CMAKE_COMMAND} --build ${BINARY_DIR} -j ${JOBS} RESULT_VARIABLE rc)
+if(NOT rc EQUAL 0)
+  message(FATAL_ERROR "sanitizers: building ${BINARY_DIR} failed")
+endif()
+# halt_on_error: the first finding fails its test; leaks are findings too.
+set(ENV{ASAN_OPTIONS} "halt_on_error=1:detect_leaks=1:abort_on_error=0")
+set(ENV{UBSAN_OPTIONS} "halt_on_error=1:print_stacktrace=1")
+# install_consumer needs the install target, which this tree does not make.
+execute_process(COMMAND ${CMAKE_CTEST_COMMAND} --test-dir ${BINARY_DIR} --output-on-failure -j ${JOBS} -E install_consumer
+                RESULT_VARIABLE rc)
+if(NOT rc EQUAL 0)
+  message(FATAL_ERROR "sanitizers: the test suite failed under ASan/UBSan (tree ${BINARY_DIR})")
+endif()
