@@ -343,11 +343,11 @@ TaskOutcome RunFit(const TaskSpec& t, const RunContext& ctx) {
     inst = ctx.scene.instruments.at(t.instrument).instrument;
     opt.instrument = &inst;
   }
-  Progress progress("fit " + t.name, double(t.max_iterations), ctx.quiet);
+  Progress progress("fit " + t.name, 0, ctx.quiet);  // the number of iterations is not known in advance
   opt.progress = [&](int iteration, double, double cost) {
     // Between iterations: the solver's state is consistent, so stopping here is clean.
     ThrowIfInterrupted();
-    progress.Update(iteration, "cost " + FormatDouble(cost));
+    progress.Update(iteration, "iteration " + std::to_string(iteration) + ", cost " + FormatDouble(cost));
   };
   const fit::Result r = fit::Fit(model, ds, opt);
   progress.Finish();

@@ -323,4 +323,19 @@ TEST(Run, NoProgressBarsWhenStderrIsNotATerminal) {
   EXPECT_EQ(r.out.find("left"), std::string::npos);
 }
 
+// Under a terminal (script(1) gives the tool a pseudo-terminal), work longer
+// than a second draws a bar with the time left.
+TEST(Run, ProgressBarsWithTimeLeftOnATerminal) {
+  const fs::path d = FreshDir("tty");
+  json s = SmallScene({"integrators"});
+  s["tasks"].push_back({{"name", "integrators"}, {"type", "convergence"}, {"quick", false}});
+  WriteText(d / "scene.json", s.dump());
+  const std::string inner = std::string(BRDFKIT_EXE) + " run " + (d / "scene.json").string() + " --out " + (d / "out").string();
+  const CliRun r = brdfkit::test::Shell("script -qfec '" + inner + "' /dev/null");
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_NE(r.out.find("convergence ["), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find(" left"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find('\r'), std::string::npos);
+}
+
 }  // namespace

@@ -18,11 +18,9 @@ struct CliRun {
   std::string out;  // stdout and stderr
 };
 
-// Runs `brdfkit ARGS` through the shell (so ARGS may redirect or cd first
-// with a "cd DIR && " prefix given as `pre`).
-inline CliRun Brdfkit(const std::string& args, const std::string& pre = "") {
-  const std::string cmd = pre + std::string(BRDFKIT_EXE) + " " + args + " 2>&1";
-  FILE* pipe = popen(cmd.c_str(), "r");
+// Runs a shell command line, stdout and stderr together.
+inline CliRun Shell(const std::string& command) {
+  FILE* pipe = popen((command + " 2>&1").c_str(), "r");
   CliRun r{-1, ""};
   if (!pipe) return r;
   std::array<char, 4096> buf;
@@ -31,6 +29,11 @@ inline CliRun Brdfkit(const std::string& args, const std::string& pre = "") {
   const int status = pclose(pipe);
   r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
   return r;
+}
+
+// Runs `brdfkit ARGS` through the shell; `pre` may prefix it ("cd DIR && ").
+inline CliRun Brdfkit(const std::string& args, const std::string& pre = "") {
+  return Shell(pre + std::string(BRDFKIT_EXE) + " " + args);
 }
 
 inline std::string ReadText(const std::filesystem::path& p) {
