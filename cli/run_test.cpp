@@ -197,6 +197,7 @@ TEST(Run, MalformedScenesAreRejectedBeforeAnyWork) {
   json unknown_output = SmallScene({"nothing_like_this"});
   const std::vector<Case> cases = {
       {"bad_json", "{\n  \"tasks\": [\n    {\"name\": \"a\",, }\n  ]\n}\n", "line 3"},
+      {"overflow", "{\"tasks\": [{\"name\": \"a\", \"type\": \"check\", \"samples\": 1E60799}]}", "number overflow"},
       {"unknown_key", unknown_key.dump(2), "tasks[3].metirc: unknown key"},
       {"wrong_type", wrong_type.dump(2), "tasks[0].axes: expected a string"},
       {"missing_file", missing_file.dump(2), "materials.measured.merl: file"},

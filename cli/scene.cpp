@@ -213,11 +213,12 @@ Scene ParseScene(const std::string& text, const std::string& origin, const std::
   json root;
   try {
     root = json::parse(text);
-  } catch (const json::parse_error& e) {
-    // nlohmann's message gives the line and column.
+  } catch (const json::exception& e) {
+    // nlohmann's message gives the line and column (a number too large for a
+    // double is an out_of_range error, not a parse_error).
     std::string what = e.what();
-    const auto p = what.find("parse error");
-    throw std::runtime_error(origin + ": not valid JSON: " + (p == std::string::npos ? what : what.substr(p)));
+    const auto p = what.find("] ");
+    throw std::runtime_error(origin + ": not valid JSON: " + (p == std::string::npos ? what : what.substr(p + 2)));
   }
   Scene s;
   s.origin = origin;
