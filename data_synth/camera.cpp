@@ -191,12 +191,14 @@ CameraRig ParseCameraRig(const json& j, const std::string& file) {
 }
 
 CameraRig LoadCameraRig(const std::string& path) {
+  // An ifstream opens a directory and fails only when read, with no file name.
+  if (std::filesystem::is_directory(path)) throw std::runtime_error(path + ": is a directory, not a camera rig file");
   std::ifstream in(path);
   if (!in) throw std::runtime_error("cannot read camera rig file '" + path + "'");
   json j;
   try {
     j = json::parse(in);
-  } catch (const json::parse_error& e) {
+  } catch (const json::exception& e) {  // parse errors, and out_of_range for numbers beyond a double
     throw std::runtime_error(path + ": not valid JSON: " + e.what());
   }
   return ParseCameraRig(j, path);

@@ -321,12 +321,14 @@ Instrument ParseInstrument(const json& j, const std::string& file, const std::st
 }
 
 Instrument LoadInstrument(const std::string& path) {
+  // An ifstream opens a directory and fails only when read, with no file name.
+  if (std::filesystem::is_directory(path)) throw std::runtime_error(path + ": is a directory, not an instrument file");
   std::ifstream in(path);
   if (!in) throw std::runtime_error("cannot read instrument file '" + path + "'");
   json j;
   try {
     j = json::parse(in);
-  } catch (const json::parse_error& e) {
+  } catch (const json::exception& e) {  // parse errors, and out_of_range for numbers beyond a double
     throw std::runtime_error(path + ": not valid JSON: " + e.what());
   }
   return ParseInstrument(j, path, std::filesystem::path(path).parent_path().string());

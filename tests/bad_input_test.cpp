@@ -240,6 +240,13 @@ TEST_F(BadInput, InstrumentFilesNameTheKey) {
   Write(P("broken.json"), "{\n  \"source\": {\n    \"type\": \"disc\",\n");
   ExpectRejected(synth(P("broken.json")), {P("broken.json")});
   ExpectRejected(synth(P("absent.json")), {P("absent.json")});
+  // A number beyond a double (nlohmann throws out_of_range, not a parse error).
+  std::string huge = base.dump();
+  huge.replace(huge.find("\"exposure_time\":") + 16, 5, "1e400");
+  Write(P("huge.json"), huge);
+  ExpectRejected(synth(P("huge.json")), {P("huge.json"), "1e400"});
+  fs::create_directories(P("folder.json"));
+  ExpectRejected(synth(P("folder.json")), {P("folder.json")});
 }
 
 // Model parameters: each message names the parameter (or the model name).
