@@ -167,6 +167,31 @@ TEST(Run, TheFitInTheSceneRecoversTheSynthesisedMaterial) {
   ASSERT_EQ(e.code, 0) << e.out;
 }
 
+// A measured material from a MERL file (written by the synthesiser from a
+// known lambert+ggx on every 3rd/3rd/6th bin; the rest are missing, -1) is
+// fitted back; the check task defined beside it is not requested.
+TEST(Run, AMerlMaterialIsFittedBack) {
+  const fs::path d = FreshDir("merl");
+  WriteText(d / "inst.json", R"({"source": {"type": "collimated", "irradiance": 10},
+    "detector": {"angular_radius_deg": 0, "responsivity": 1e18, "exposure_time": 0.001},
+    "sample": {"area": 1e-4, "tilt_x_deg": 0, "tilt_y_deg": 0},
+    "plan": {"type": "merl", "stride": [3, 3, 6]}})");
+  const CliRun s = Brdfkit("synth -m lambert+ggx -p lambert.albedo=0.1:0.2:0.3,ggx.alpha=0.1,ggx.f0=0.05 -i " +
+                           (d / "inst.json").string() + " -o " + (d / "scan.binary").string() + " -q");
+  ASSERT_EQ(s.code, 0) << s.out;
+  WriteText(d / "scene.json", R"({"materials": {"scan": {"merl": "scan.binary"}},
+    "tasks": [{"name": "fit_scan", "type": "fit", "data": "scan", "model": "lambert+ggx", "starts": 2},
+              {"name": "check_scan", "type": "check", "materials": ["scan"]}],
+    "outputs": ["fit_scan"]})");
+  const CliRun r = Brdfkit("run " + (d / "scene.json").string() + " --out " + (d / "out").string() + " --quiet");
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_FALSE(fs::exists(d / "out" / "check_scan"));
+  const json fit = json::parse(ReadText(d / "out" / "fit_scan" / "fit.json"));
+  EXPECT_NEAR(fit.at("params").at("ggx.alpha").get<double>(), 0.1, 1e-9);
+  EXPECT_NEAR(fit.at("params").at("lambert.albedo")[2].get<double>(), 0.3, 1e-9);
+  EXPECT_GT(fit.at("missing").get<long long>(), 1000000) << "the skipped bins are counted as missing";
+}
+
 // Each malformed scene: exit 2, a message naming the file and the key path
 // (or line), and no output folder: nothing started.
 TEST(Run, MalformedScenesAreRejectedBeforeAnyWork) {
