@@ -70,11 +70,14 @@
 // | sigma_0  | [1e-3, 10]   | 0.2     | rms surface height, micrometres (log scale)         |
 // | tau      | [0.05, 100]  | 2       | autocorrelation length, micrometres (log scale)     |
 // | n        | [0.05, 20]   | 1.5     | real part of the complex refractive index (colour)  |
-// | k        | [0, 20]      | 0       | imaginary part of the index (colour)                |
+// | k        | [0, 20]      | 0.5     | imaginary part of the index (colour)                |
 // | lambda_r | [0.2, 2]     | 0.65    | wavelength of the red channel, micrometres          |
 // | lambda_g | [0.2, 2]     | 0.55    | wavelength of the green channel, micrometres        |
 // | lambda_b | [0.2, 2]     | 0.45    | wavelength of the blue channel, micrometres         |
 // | a        | [0, 1]       | 0.1     | uniform-diffuse reflectance (colour)                |
+//
+// The default k is 0.5, not 0: F depends on k through k^2, so k = 0 is a
+// stationary point from which a fit could not move k.
 //
 // Properties: reciprocal (every factor is symmetric in wi, wo, and the
 // effective roughness uses K_i + K_o). Not energy-conserving by construction:
@@ -244,7 +247,7 @@ class He {
     info.params.push_back({"sigma_0", 1e-3, 10.0, 0.2, false, "rms surface height (micrometres)", S::kLog});
     info.params.push_back({"tau", 0.05, 100.0, 2.0, false, "autocorrelation length (micrometres)", S::kLog});
     info.params.push_back({"n", 0.05, 20.0, 1.5, true, "real part of the complex refractive index"});
-    info.params.push_back({"k", 0.0, 20.0, 0.0, true, "imaginary part of the complex refractive index"});
+    info.params.push_back({"k", 0.0, 20.0, 0.5, true, "imaginary part of the complex refractive index"});
     info.params.push_back({"lambda_r", 0.2, 2.0, 0.65, false, "wavelength of the red channel (micrometres)"});
     info.params.push_back({"lambda_g", 0.2, 2.0, 0.55, false, "wavelength of the green channel (micrometres)"});
     info.params.push_back({"lambda_b", 0.2, 2.0, 0.45, false, "wavelength of the blue channel (micrometres)"});

@@ -36,7 +36,7 @@
 // | sigma_v | [1e-3, 2]   | 0.1     | rms slope along the grooves (log scale)          |
 // | angle   | [0, pi]     | 0       | direction of u from the x axis (radians)         |
 // | n       | [0.05, 20]  | 1.5     | real part of the complex index (colour)          |
-// | k       | [0, 20]     | 0       | imaginary part (extinction), 0 for dielectrics (colour) |
+// | k       | [0, 20]     | 0.5     | imaginary part (extinction), 0 for dielectrics (colour) |
 //
 // What is approximated (as in Kajiya's Kirchhoff evaluation):
 //  - tangent plane: the local field is the Fresnel reflection off the
@@ -51,6 +51,8 @@
 //    approximation, not patched);
 //  - |R|^2 is the unpolarised reflectance of the complex index n + ik at the
 //    local angle of incidence (mean of s and p).
+//  - The default k is 0.5, not 0: F depends on k through k^2, so k = 0 is a
+//    stationary point from which a fit could not move k.
 // Reciprocal: every factor is symmetric in wi, wo (wi.m = wo.m).
 //
 // Sampling: the distribution of normals D(m) cos(theta_m) is sampled exactly
@@ -79,7 +81,7 @@ class Kajiya {
     info.params.push_back({"sigma_v", 1e-3, 2.0, 0.1, false, "rms surface slope along the grooves", S::kLog});
     info.params.push_back({"angle", 0.0, kPi, 0.0, false, "direction of the across-groove axis from x (radians)"});
     info.params.push_back({"n", 0.05, 20.0, 1.5, true, "real part of the complex refractive index"});
-    info.params.push_back({"k", 0.0, 20.0, 0.0, true, "imaginary part of the complex refractive index"});
+    info.params.push_back({"k", 0.0, 20.0, 0.5, true, "imaginary part of the complex refractive index"});
     info.reciprocal = true;
     info.energy_conserving = false;  // no shadowing: the albedo exceeds 1 near grazing
     return info;
