@@ -235,7 +235,20 @@ SynthResult Synthesize(const Instrument& inst, const Model& model, const std::ve
   result.report.checked_pairs = choice.checked;
   result.report.horizon_crossing = choice.horizon_crossing;
 
-  const ApertureQuadrature q = MakeApertureQuadrature(inst, choice.order);
+  // Per-pair order: with the automatic order each pair starts at order 1 and
+  // goes up, order by order, until two successive orders agree to the
+  // tolerance (relative, max over channels) or the order chosen above is
+  // reached; most pairs stop long before the worst pair's order. A fixed
+  // order from the settings is used as it is.
+  const int max_order = choice.order;
+  const bool per_pair = inst.quadrature.order == 0 && max_order > 1;
+  std::vector<ApertureQuadrature> rules;
+  for (int n = 1; n <= max_order; ++n) rules.push_back(MakeApertureQuadrature(inst, n));
+  const ApertureQuadrature& q = rules.back();
+  const double rs = SourceRadius(inst), rd = inst.detector.angular_radius;
+  const Eigen::Matrix3d tilt = inst.sample.SampleFromLab();
+  std::vector<int> pair_order(per_pair ? result.plan.pairs.size() : 0, 0);
+  std::vector<double> pair_error(pair_order.size(), 0.0);
   const Imperfections& m = inst.imperfections;
   const SensorModel sensor(m, inst.detector.exposure_time);
   const bool noisy = m.AnyNoise();
@@ -256,9 +269,28 @@ SynthResult Synthesize(const Instrument& inst, const Model& model, const std::ve
       SampleRng rng(seed, n);
       const Eigen::Vector3d ai = JitterDirection(wi, m.jitter_source, rng);
       const Eigen::Vector3d ao = JitterDirection(wo, m.jitter_detector, rng);
-      const PlacedCone src = PlaceCone(q.source, ai, wi, q.sample_from_lab);
-      const PlacedCone det = PlaceCone(q.detector, ao, wo, q.sample_from_lab);
-      const ApertureIntegral<double> a = IntegrateApertures(*bxdf, params.data(), src, det);
+      const auto integrate = [&](const ApertureQuadrature& rule) {
+        const PlacedCone src = PlaceCone(rule.source, ai, wi, rule.sample_from_lab);
+        const PlacedCone det = PlaceCone(rule.detector, ao, wo, rule.sample_from_lab);
+        return IntegrateApertures(*bxdf, params.data(), src, det);
+      };
+      ApertureIntegral<double> a = integrate(per_pair ? rules.front() : q);
+      if (per_pair) {
+        int order = 1;
+        double err = 0;
+        while (order < max_order) {
+          ApertureIntegral<double> b = integrate(rules[order]);
+          ++order;
+          const double na = a.Norm(), nb = b.Norm();
+          // |I_n - I_(n-1)| / |I_n|: the error of order n - 1, an upper estimate for order n.
+          const double scale = nb > 0 ? (b.weighted / nb).abs().maxCoeff() : 0.0;
+          err = scale > 0 && na > 0 ? (b.weighted / nb - a.weighted / na).abs().maxCoeff() / scale : 0.0;
+          a = std::move(b);
+          if (err < inst.quadrature.tolerance) break;
+        }
+        pair_order[n] = order;
+        pair_error[n] = err;
+      }
       const double norm = a.Norm();
       if (!(norm > 0)) continue;  // no nominal flux reaches the detector
       out.valid = true;
@@ -276,6 +308,27 @@ SynthResult Synthesize(const Instrument& inst, const Model& model, const std::ve
       }
     }
   });
+  if (per_pair) {
+    double order_sum = 0;
+    std::size_t counted = 0;
+    for (std::size_t n = 0; n < pair_order.size(); ++n) {
+      if (pair_order[n] == 0) continue;  // not measured
+      order_sum += pair_order[n];
+      ++counted;
+      const PlannedPair& p = result.plan.pairs[n];
+      // Pairs near the horizon converge slowly (see NearHorizon): counted, not bounded.
+      if (NearHorizon(DirectionFromAngles(p.theta_i, p.phi_i), rs, tilt) ||
+          NearHorizon(DirectionFromAngles(p.theta_o, p.phi_o), rd, tilt))
+        continue;
+      // A pair that reached the order chosen above has that order's error,
+      // estimated by the choice against the next order (quadrature_error).
+      if (pair_order[n] == max_order && pair_error[n] >= inst.quadrature.tolerance)
+        ++result.report.pairs_at_max_order;
+      else
+        result.report.pair_error = std::max(result.report.pair_error, pair_error[n]);
+    }
+    result.report.mean_order = counted ? order_sum / double(counted) : 0.0;
+  }
   for (const SynthSample& s : result.samples) {
     if (s.valid) ++result.report.measured;
     else ++result.report.not_measured;

@@ -48,6 +48,16 @@ struct SynthReport {
   double quadrature_error = 0;      // estimated relative error (max over the checked pairs)
   std::size_t checked_pairs = 0;    // pairs used to choose the order and estimate its error
   std::size_t horizon_crossing = 0; // pairs with a cone within 3 radii of the horizon (error not controlled)
+  // Automatic order: each pair raises its own order up to `order` until two
+  // successive orders agree to the tolerance. mean_order is the average order
+  // used; over the pairs away from the horizon, pairs_at_max_order counts
+  // those that reached `order` without that agreement (their error is the
+  // order's, estimated by quadrature_error) and pair_error is the largest
+  // relative difference of the last two orders of the others (an upper
+  // estimate of their error, below the tolerance).
+  double mean_order = 0;
+  double pair_error = 0;
+  std::size_t pairs_at_max_order = 0;
   std::size_t measured = 0, not_measured = 0, saturated = 0;
   double seconds = 0;
 };
