@@ -4,13 +4,13 @@
 // Gaussian autocorrelation of length tau) with Smith shadowing, a complex
 // Fresnel coefficient and the effective roughness of shadowed surfaces.
 //
-//   rho_bd = rho_sp + rho_dd + rho_ud                                  (eq. 5)
+//   rho_bd = rho_sp + rho_dd + rho_ud        (the paper's summary of the model)
 //
 // Notation (the paper's): k_i = -wi is the incident propagation direction,
 // k_r = wo; v = k (k_r - k_i) = k h with h = wi + wo and k = 2 pi / lambda,
 // v_xy = k |h_xy|, v_z = k (cos_i + cos_o).
 //
-// Directional diffuse (eq. 7-8, 70-71):
+// Directional diffuse (the summary formulas for rho_dd and D):
 //   rho_dd = |F|^2 G S D / (pi cos_i cos_o)
 //   D = (pi^2 tau^2 / (4 lambda^2)) sum_{m>=1} g^m e^-g / (m! m) exp(-v_xy^2 tau^2 / (4 m))
 //   g = ((2 pi sigma / lambda) (cos_i + cos_o))^2
@@ -20,17 +20,17 @@
 //     G = (h.h / h_z)^2 exactly.
 //   F: Fresnel reflectance (unpolarised, mean of s and p) of the complex index
 //     n + ik at the local angle of incidence cos = wi.h / |h| (the bisector).
-// Shadowing (eq. 24-25, Smith 1967):
+// Shadowing (the paper's S, after Smith 1967):
 //   S = S(theta_i) S(theta_o),  S(theta) = (1 - erfc(nu) / 2) / (Lambda + 1),
 //   Lambda = (exp(-nu^2) / (sqrt(pi) nu) - erfc(nu)) / 2,  nu = tau cot(theta) / (2 sigma_0).
-// Effective roughness (eq. 78-80):
+// Effective roughness (the paper's sigma, z0 and K):
 //   sigma = sigma_0 / sqrt(1 + z0^2 / sigma_0^2),
 //   sqrt(pi / 2) z0 = (sigma_0 / 4) (K_i + K_o) exp(-z0^2 / (2 sigma_0^2)),
 //   K = tan(theta) erfc(tau cot(theta) / (2 sigma_0)),
 //   solved for x = z0 / sigma_0 by Newton's method on log x (the equation is
 //   monotone in log x); the last steps run in T so fits get the derivative of
 //   the root (implicit function theorem).
-// Uniform diffuse (eq. 5): rho_ud = a(lambda) / pi here, a being the
+// Uniform diffuse: rho_ud = a(lambda) / pi here, a being the
 //   hemispherical reflectance of the subsurface term (the paper's a(lambda)
 //   is that value divided by pi).
 //
@@ -56,7 +56,7 @@
 // Kirchhoff model takes from the coherent beam goes into rho_dd).
 //
 // The specular term rho_sp = |F(theta_i)|^2 e^-g S Delta / (cos_i d omega_i)
-// (eq. 6) is a Dirac delta about the mirror direction: it is NOT part of Eval
+// is a Dirac delta about the mirror direction: it is NOT part of Eval
 // (a delta has no finite value to evaluate, check, tabulate or fit against
 // finitely many measured directions; measured peaks belong to rho_dd, which
 // holds all the light of a rough surface). Its strength, the fraction of the
@@ -121,7 +121,7 @@ inline T HeShadowing(const T& cos_t, const T& sin_t, const T& r) {
   return (T(1) - erfc(nu) / T(2)) / (lambda + T(1));
 }
 
-// K(theta) = tan(theta) erfc(tau cot(theta) / (2 sigma_0)) of eq. 80.
+// K(theta) = tan(theta) erfc(tau cot(theta) / (2 sigma_0)) of the z0 equation.
 template <typename T>
 inline T HeK(const T& cos_t, const T& sin_t, const T& r) {
   using std::erfc;
@@ -129,7 +129,7 @@ inline T HeK(const T& cos_t, const T& sin_t, const T& r) {
   return sin_t / cos_t * erfc(r * cos_t / sin_t);
 }
 
-// Root x > 0 of x = a exp(-x^2 / 2) (eq. 79 with x = z0 / sigma_0), as
+// Root x > 0 of x = a exp(-x^2 / 2) (the z0 equation with x = z0 / sigma_0), as
 // y = log x: y + e^{2y} / 2 - log a = 0 is increasing and convex in y, so
 // Newton's method converges monotonically after its first step.
 template <typename T>
@@ -257,7 +257,7 @@ class He {
     return info;
   }
 
-  // Effective roughness sigma (eq. 78-80) for the pair of directions.
+  // Effective roughness sigma for the pair of directions.
   template <typename T>
   static T EffectiveRoughness(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) {
     using std::sqrt;
@@ -268,7 +268,7 @@ class He {
     return p[0] / sqrt(T(1) + x * x);
   }
 
-  // Shadowing S(theta_i) S(theta_o) (eq. 24-25).
+  // Shadowing S(theta_i) S(theta_o).
   template <typename T>
   static T Shadowing(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) {
     const T r = p[1] / (T(2) * p[0]);
@@ -318,7 +318,7 @@ class He {
   }
 
   // Fraction of the incident power reflected coherently into the mirror
-  // direction (the delta term of eq. 6, left out of Eval):
+  // direction (the delta term rho_sp, left out of Eval):
   // |F(theta_i)|^2 exp(-g) S(theta_i)^2, g at theta_o = theta_i.
   template <typename T>
   static Rgb<T> SpecularReflectance(const T* p, const Vec3<T>& wi) {

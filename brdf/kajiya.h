@@ -3,10 +3,11 @@
 // computed from the Kirchhoff (tangent-plane) approximation of the scattered
 // field, for a parameterised family of surfaces.
 //
-// Kirchhoff integral (Kajiya eq. 3-5, after Beckmann & Spizzichino 1963,
-// ch. 3): with k = 2 pi / lambda, v = k (k_r - k_i) and the local Fresnel
-// coefficient R of the tangent plane, the scattered field of a patch of area A
-// over the height field z(x, y) is
+// Kirchhoff integral (as Kajiya writes it after Beckmann & Spizzichino
+// 1963, "The scattering of electromagnetic waves from rough surfaces"):
+// with k = 2 pi / lambda, v = k (k_r - k_i) and the local Fresnel
+// coefficient R of the tangent plane, the scattered field of a patch of area
+// A over the height field z(x, y) is
 //   E_2 ~ int_A (a z_x + b z_y - c) exp(i v.r) dx dy,
 //   a = (1 - R) sin t1 + (1 + R) sin t2 cos t3,  b = (1 + R) sin t2 sin t3,
 //   c = (1 + R) cos t2 - (1 - R) cos t1,
@@ -15,7 +16,7 @@
 // phase varies over many wavelengths within a facet, stationary phase leaves
 // only the points whose normal is the bisector m = h / |h|, h = wi + wo, and
 // R evaluated on them; averaging |E_2|^2 over the surface's slope statistics
-// gives (Beckmann & Spizzichino eq. 5.33 with Kajiya's local R)
+// gives Beckmann & Spizzichino's geometric-optics result with Kajiya's local R
 //
 //   f_r = |R(wi.m)|^2 (1 + wi.wo)^2 p(zeta_u, zeta_v) / (cos_i cos_o (cos_i + cos_o)^4),
 //
@@ -49,6 +50,9 @@
 //    therefore not cancelled near the horizon and the albedo exceeds 1 at
 //    grazing angles: brdfkit check reports it (it is the physics of the
 //    approximation, not patched);
+//  - the surface is described statistically: Kajiya's per-facet evaluation
+//    of an explicit (tabulated or periodic) micro-geometry, with its
+//    diffraction orders, is not implemented;
 //  - |R|^2 is the unpolarised reflectance of the complex index n + ik at the
 //    local angle of incidence (mean of s and p).
 //  - The default k is 0.5, not 0: F depends on k through k^2, so k = 0 is a

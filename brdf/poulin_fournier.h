@@ -18,7 +18,8 @@
 // from the vertical, with projected length r = sqrt(x^2 + z^2). The arc
 // normal n(theta) = (sin theta, 0, cos theta) gives w.n = r cos(theta - alpha).
 //
-// Shadowing (Poulin & Fournier sec. 3, derived for the cut cylinder): for
+// Shadowing (Poulin & Fournier's construction, written out for the cut
+// cylinder): for
 // alpha >= 0 (light from the +x side) the point at theta of the arc is
 // shadowed by the next cylinder iff the ray passes within 1 of its centre and
 // that centre lies ahead: with u = theta - alpha,
