@@ -9,13 +9,17 @@
 option(BRDFKIT_ROBUSTNESS_TESTS "Add the sanitizer suite and the fuzzers to ctest" ${BRDFKIT_TOP_LEVEL})
 set(BRDFKIT_FUZZ_SECONDS 30 CACHE STRING "Seconds each fuzz target runs under ctest")
 
-if(BRDFKIT_ROBUSTNESS_TESTS AND NOT BRDFKIT_SANITIZE)
+option(BRDFKIT_SANITIZER_SUITE "With BRDFKIT_ROBUSTNESS_TESTS: the ASan/UBSan suite stage" ON)
+
+if(BRDFKIT_ROBUSTNESS_TESTS AND BRDFKIT_SANITIZER_SUITE AND NOT BRDFKIT_SANITIZE)
   add_test(NAME sanitizers
     COMMAND ${CMAKE_COMMAND} -DSOURCE_DIR=${PROJECT_SOURCE_DIR} -DBINARY_DIR=${PROJECT_BINARY_DIR}/asan
             -P ${PROJECT_SOURCE_DIR}/cmake/SanitizeSuite.cmake)
   # Started first (ctest runs the longest tests first once it knows them).
   set_tests_properties(sanitizers PROPERTIES TIMEOUT 1500 COST 1000)
+endif()
 
+if(BRDFKIT_ROBUSTNESS_TESTS AND NOT BRDFKIT_SANITIZE)
   find_program(BRDFKIT_CLANGXX NAMES clang++ clang++-14)
   set(_fuzz_tree ${PROJECT_BINARY_DIR}/fuzz)
   add_test(NAME fuzz_build
