@@ -224,7 +224,7 @@ void Sweep(const Model& model, const std::vector<Point>& points, const std::vect
             const Eigen::Array3d ref = bd->Eval(pd.data(), dd[i], dd[o]);
             for (int c = 0; c < 3; ++c) {
               if (!std::isfinite(vd[c]) || !std::isfinite(ref[c])) continue;
-              const double r = RelDiff(vd[c], ref[c], kStressFloatFloor);
+              const double r = RelDiff(vd[c], ref[c], kStressValueFloor);
               if (r > row.float_double_max_rel_diff) {
                 row.float_double_max_rel_diff = r;
                 std::ostringstream s;
@@ -243,7 +243,7 @@ void Sweep(const Model& model, const std::vector<Point>& points, const std::vect
           for (int c = 0; c < 3; ++c) {
             const double a = f[i * m + o][c], r = f[o * m + i][c];
             if (std::isfinite(a) && std::isfinite(r))
-              row.reciprocity_max_rel_error = std::max(row.reciprocity_max_rel_error, RelDiff(a, r, 0.0));
+              row.reciprocity_max_rel_error = std::max(row.reciprocity_max_rel_error, RelDiff(a, r, kStressValueFloor));
           }
     // Sampling and pdf at every wo.
     if constexpr (!std::is_same_v<T, Jet>) {

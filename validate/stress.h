@@ -50,7 +50,7 @@ struct StressRow {
   std::int64_t horizon_nonzero_count = 0;  // values != 0 with wi or wo at or below the horizon
   std::int64_t nonfinite_derivative_count = 0;  // jet: derivative components not finite where the value is
   std::int64_t sample_failures = 0;  // Sample/Pdf: a non-finite or negative pdf, a non-unit wi, pdf mismatch
-  double reciprocity_max_rel_error = 0;  // reciprocal models only; 0 otherwise
+  double reciprocity_max_rel_error = 0;  // reciprocal models only; 0 otherwise (floor kStressValueFloor)
   double float_double_max_rel_diff = 0;  // float row: against double at the same float inputs
   std::string worst_float_case;      // where that difference occurred
   std::string first_failure;         // first non-finite/negative case, empty when none
@@ -62,9 +62,11 @@ struct StressRow {
 
 std::vector<StressRow> RunStress(const StressOptions& options = {});
 
-// Floor of the float/double relative difference: |f_f - f_d| / max(|f_d|,
-// kStressFloatFloor); values below it are underflow in float, not error.
-inline constexpr double kStressFloatFloor = 1e-30;
+// Floor (1/sr) of the relative differences (reciprocity, float/double):
+// |a - b| / max(|a|, |b|, kStressValueFloor). Values below it are rounding
+// residue (e.g. Fresnel at eta = 1, k = 0, which is 0 exactly), far below
+// any measurable reflectance.
+inline constexpr double kStressValueFloor = 1e-12;
 
 // Stiff integrals: directional albedo of mirror-like lobes (alpha = 1e-4)
 // at mu = 1e-6, by the half-vector cubature of validate/albedo.h and by the
