@@ -12,7 +12,11 @@ execute_process(COMMAND ${EXE} ${_args} ${WORK_DIR}/corpus ${CORPUS}
                 RESULT_VARIABLE rc OUTPUT_VARIABLE out ERROR_VARIABLE out)
 string(REGEX MATCH "Done [0-9]+ runs in [0-9]+ second" done "${out}")
 string(REGEX MATCH "stat::number_of_executed_units: [0-9]+" units "${out}")
-string(REGEX MATCH "cov: [0-9]+ ft: [0-9]+ corp: [0-9]+/[0-9]+[a-zA-Z]*" cov "${out}")
+string(REGEX MATCHALL "cov: [0-9]+ ft: [0-9]+ corp: [0-9]+/[0-9]+[a-zA-Z]*" covs "${out}")
+set(cov "")
+if(covs)
+  list(GET covs -1 cov)  # the final line
+endif()
 if(NOT rc EQUAL 0)
   message("${out}")
   message(FATAL_ERROR "fuzzer ${EXE} failed (exit ${rc}); the input is in ${WORK_DIR}")
