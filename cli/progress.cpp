@@ -90,4 +90,19 @@ void Progress::Draw(double done, const std::string& note, bool) {
   drawn_ = true;
 }
 
+std::function<void(std::size_t, std::size_t)> ThreadedProgress::Callback() {
+  return [this](std::size_t done, std::size_t total) {
+    ThrowIfInterrupted();
+    std::unique_lock<std::mutex> lock(mutex_, std::try_to_lock);
+    if (!lock.owns_lock()) return;  // another thread is drawing
+    if (!bar_) bar_ = std::make_unique<Progress>(label_, double(total), quiet_);
+    bar_->Update(double(done));
+  };
+}
+
+void ThreadedProgress::Finish() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (bar_) bar_->Finish();
+}
+
 }  // namespace brdfkit::cli

@@ -12,6 +12,10 @@
 #pragma once
 
 #include <chrono>
+#include <cstddef>
+#include <functional>
+#include <memory>
+#include <mutex>
 #include <stdexcept>
 #include <string>
 
@@ -44,6 +48,22 @@ class Progress {
   bool enabled_;
   bool drawn_ = false;
   std::chrono::steady_clock::time_point start_, last_;
+};
+
+// A Progress fed from worker threads: the callback checks for Ctrl-C
+// (throwing Interrupted, which stops a TBB loop and propagates) and draws
+// from whichever thread holds the lock.
+class ThreadedProgress {
+ public:
+  ThreadedProgress(std::string label, bool quiet) : label_(std::move(label)), quiet_(quiet) {}
+  std::function<void(std::size_t, std::size_t)> Callback();
+  void Finish();
+
+ private:
+  std::string label_;
+  bool quiet_;
+  std::mutex mutex_;
+  std::unique_ptr<Progress> bar_;
 };
 
 }  // namespace brdfkit::cli

@@ -136,10 +136,10 @@ TaskOutcome RunAlbedo(const TaskSpec& t, const RunContext& ctx) {
   req.axes = validate::ParseAxes(t.axes);
   req.rule = t.gauss_nodes ? validate::NodeRule::kGauss : validate::NodeRule::kUniform;
   req.quadrature.abs_tolerance = t.tolerance;
-  Progress progress("albedo " + t.name, 0, ctx.quiet);
+  ThreadedProgress progress("albedo " + t.name, ctx.quiet);
+  req.progress = progress.Callback();
   const validate::AlbedoTable table = validate::BuildAlbedoTable(model, t.params, req);
   progress.Finish();
-  ThrowIfInterrupted();
   for (const std::string& f : t.formats) {
     if (f == "csv") {
       validate::WriteAlbedoCsv(table, dir.Abs("albedo.csv"));
@@ -235,7 +235,7 @@ TaskOutcome RunSynth(const TaskSpec& t, const RunContext& ctx) {
   const MaterialSpec& m = ctx.scene.materials.at(t.material);
   const LoadedModel lm = MaterialModel(m, ctx);
   const InstrumentSpec& in = ctx.scene.instruments.at(t.instrument);
-  Progress progress("synth " + t.name, 0, ctx.quiet);
+  ThreadedProgress progress("synth " + t.name, ctx.quiet);
   if (in.camera) {
     const synth::CameraCapture cap = synth::RenderCamera(in.rig, lm.model, lm.params, t.seed);
     ThrowIfInterrupted();
@@ -261,9 +261,8 @@ TaskOutcome RunSynth(const TaskSpec& t, const RunContext& ctx) {
     return o;
   }
   const synth::Instrument& inst = in.instrument;
-  const synth::SynthResult r = synth::Synthesize(inst, lm.model, lm.params, t.seed);
+  const synth::SynthResult r = synth::Synthesize(inst, lm.model, lm.params, t.seed, progress.Callback());
   progress.Finish();
-  ThrowIfInterrupted();
   synth::Provenance prov;
   prov.model = lm.model.Spec();
   prov.params = lm.params;

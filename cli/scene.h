@@ -51,7 +51,7 @@ struct TaskSpec {
   std::vector<double> params;    // albedo: fixed parameter values (packed)
   std::string axes = "mu:32,alpha:32";
   bool gauss_nodes = false;
-  double tolerance = 1e-8;
+  double tolerance = 1e-6;  // as validate::AlbedoQuadratureOptions
   std::vector<std::string> formats;  // albedo: csv, exr, header; synth: csv, binary, exr
   // synth
   std::string material;

@@ -217,12 +217,12 @@ OrderChoice ChooseApertureOrder(const Instrument& inst, const Bxdf<double>& bxdf
 }
 
 SynthResult Synthesize(const Instrument& inst, const Model& model, const std::vector<double>& params,
-                       std::uint64_t seed) {
-  return Synthesize(inst, model, params, seed, ExpandPlan(inst.plan));
+                       std::uint64_t seed, const SynthProgress& progress) {
+  return Synthesize(inst, model, params, seed, ExpandPlan(inst.plan), progress);
 }
 
 SynthResult Synthesize(const Instrument& inst, const Model& model, const std::vector<double>& params,
-                       std::uint64_t seed, ExpandedPlan plan) {
+                       std::uint64_t seed, ExpandedPlan plan, const SynthProgress& progress) {
   const auto start = std::chrono::steady_clock::now();
   ValidateParams(model.Info(), params);
   SynthResult result;
@@ -259,7 +259,9 @@ SynthResult Synthesize(const Instrument& inst, const Model& model, const std::ve
 
   const std::size_t count = result.plan.pairs.size();
   result.samples.assign(count, SynthSample{});
+  std::atomic<std::size_t> pairs_done{0};
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, count, 256), [&](const auto& range) {
+    if (progress) progress(pairs_done.fetch_add(range.size()), count);
     for (std::size_t n = range.begin(); n < range.end(); ++n) {
       const PlannedPair& p = result.plan.pairs[n];
       const Eigen::Vector3d wi = DirectionFromAngles(p.theta_i, p.phi_i);

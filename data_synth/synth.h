@@ -11,6 +11,7 @@
 #include <Eigen/Core>
 
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -82,12 +83,16 @@ struct OrderChoice {
 OrderChoice ChooseApertureOrder(const Instrument& inst, const Bxdf<double>& bxdf, const double* params,
                                 const ExpandedPlan& plan, std::size_t max_checked = 2048);
 
+// Called from the worker threads with the pairs done and the total; an
+// exception it throws stops the measurement and propagates (a user's Ctrl-C).
+using SynthProgress = std::function<void(std::size_t done, std::size_t total)>;
+
 // Runs the whole virtual measurement.
 SynthResult Synthesize(const Instrument& inst, const Model& model, const std::vector<double>& params,
-                       std::uint64_t seed);
+                       std::uint64_t seed, const SynthProgress& progress = {});
 // As above on an already expanded plan.
 SynthResult Synthesize(const Instrument& inst, const Model& model, const std::vector<double>& params,
-                       std::uint64_t seed, ExpandedPlan plan);
+                       std::uint64_t seed, ExpandedPlan plan, const SynthProgress& progress = {});
 
 // Pointing error of one arm: a Gaussian tangent offset (std `sigma` along
 // e_theta and e_phi) applied through the exponential map of the sphere.

@@ -2,6 +2,8 @@
 
 #include <tbb/parallel_for.h>
 
+#include <atomic>
+
 #include <ImfAttribute.h>
 #include <ImfChannelList.h>
 #include <ImfFloatVectorAttribute.h>
@@ -477,8 +479,10 @@ AlbedoTable BuildAlbedoTable(const Model& model, const std::vector<double>& base
   std::vector<double> limit_err(n_points + f1_params.size(), 0.0);
   std::vector<double> f1_err(t.E1.size() + t.E1_avg.size(), 0.0);
   const std::size_t n_tasks = n_points + f1_params.size() + t.E.size() + t.E1.size();
+  std::atomic<std::size_t> tasks_done{0};
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n_tasks, 1), [&](const tbb::blocked_range<std::size_t>& r) {
     for (std::size_t task = r.begin(); task != r.end(); ++task) {
+      if (req.progress) req.progress(tasks_done.fetch_add(1), n_tasks);
       std::size_t k = task;
       if (k < n_points) {
         const AlbedoValue a = AverageAlbedo(*bxdf, point_params[k].data(), shapes[k], req.quadrature);

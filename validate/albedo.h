@@ -112,6 +112,10 @@ struct AlbedoTableRequest {
   NodeRule rule = NodeRule::kUniform;
   AlbedoQuadratureOptions quadrature;
   int channel = 0;  // RGB channel tabulated (the models' grey parameters make all three equal)
+  // Called from the worker threads after each cell or average with the
+  // number done and the total; an exception it throws stops the table and
+  // propagates (a user's Ctrl-C).
+  std::function<void(std::size_t done, std::size_t total)> progress;
 };
 
 struct AlbedoTable {
