@@ -291,7 +291,7 @@ class He {
     const T hxy2 = h.x() * h.x() + h.y() * h.y();
     const T sigma = EffectiveRoughness(p, wi, wo);
     const T shadow = Shadowing(p, wi, wo);
-    const T cos_d = wi.dot(h) / sqrt(hh);
+    const T cos_d = HalfCos(wi, wo);  // = wi.h / |h|; the dot product goes negative by rounding for opposite grazing pairs
     // log of G / (pi cos_i cos_o) and the constant of D without 1 / lambda^2.
     const T log_common = T(2) * (log(hh) - log(hz)) - log(wi.z()) - log(wo.z()) + log(T(kPi / 4) * tau * tau);
     for (int c = 0; c < 3; ++c) {
@@ -340,7 +340,7 @@ class He {
     if (!SameUpperHemisphere(wi, wo)) return T(0);
     const Mixture mix = MixtureOf(p);
     const Vec3<T> m = HalfVector(wi, wo);
-    const T jac = m.z() / (T(4) * wo.dot(m));
+    const T jac = m.z() / (T(4) * HalfCos(wi, wo));  // wo.m by HalfCos: never <= 0 by rounding
     return T(mix.p_diffuse) * wi.z() * T(kInvPi) + T(mix.p_geo) * DBeckmann(m, T(mix.alpha_geo), T(mix.alpha_geo)) * jac +
            T(mix.p_wave) * DBeckmann(m, T(mix.alpha_wave), T(mix.alpha_wave)) * jac;
   }

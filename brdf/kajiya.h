@@ -124,7 +124,7 @@ class Kajiya {
     // |R|^2 D(m) / (4 cos_i cos_o): the same number without the fourth power
     // of a sum that underflows in float at grazing pairs.
     const T scalar = D(p, m) / (T(4) * wi.z() * wo.z());
-    const T cos_d = wi.dot(m);
+    const T cos_d = HalfCos(wi, wo);  // = wi.m; the dot product goes negative by rounding for opposite grazing pairs
     Rgb<T> f;
     for (int c = 0; c < 3; ++c) f[c] = FresnelConductor(p[3 + c], p[6 + c], cos_d) * scalar;
     return f;
@@ -134,7 +134,7 @@ class Kajiya {
   T Pdf(const T* p, const Vec3<T>& wo, const Vec3<T>& wi) const {
     if (!SameUpperHemisphere(wi, wo)) return T(0);
     const Vec3<T> m = HalfVector(wi, wo);
-    return D(p, m) * m.z() / (T(4) * wo.dot(m));
+    return D(p, m) * m.z() / (T(4) * HalfCos(wi, wo));  // wo.m by HalfCos: never <= 0 by rounding
   }
 
   template <typename T>

@@ -322,6 +322,50 @@ TEST(Kajiya, AnisotropicHighlightAndGrazingAlbedo) {
   EXPECT_GT(eg, 1.0);
 }
 
+// Nearly opposite grazing pair (mu = 1e-12, azimuths 2.1 and 2.1 + pi): wi.wo
+// rounds to -1 and a dot product with the half vector can come out negative.
+// The exact pair at azimuths 0 and pi has the same half vector (the normal) to
+// 5e-5 rad and no rounding in it: the values must agree.
+struct OppositeGrazing {
+  static constexpr double kMu = 1e-12;
+  Eigen::Vector3d wi{std::cos(2.1), std::sin(2.1), kMu}, wo{std::cos(2.1 + kPi), std::sin(2.1 + kPi), kMu};
+  Eigen::Vector3d wi_exact{1, 0, kMu}, wo_exact{-1, 0, kMu};
+};
+
+TEST(Kajiya, OppositeGrazingPairStaysPositive) {
+  const Model m = Model::Parse("kajiya");
+  const auto b = m.Make<double>();
+  const std::vector<double> p = m.Info().Defaults();
+  const OppositeGrazing g;
+  ASSERT_LT(1 + g.wi.dot(g.wo), 1e-20);  // the rounding the case is about
+  // m = z: D = 1 / (2 pi su sv), wo.m = mu.
+  const double d = 1 / (2 * kPi * p[0] * p[1]);
+  const double pdf = b->Pdf(p.data(), g.wo, g.wi);
+  EXPECT_NEAR(pdf / (d / (4 * g.kMu)), 1, 1e-5);
+  const double want = FresnelConductor(p[3], p[6], g.kMu) * d / (4 * g.kMu * g.kMu);
+  for (int c = 0; c < 3; ++c) {
+    const double f = b->Eval(p.data(), g.wi, g.wo)[c];
+    ASSERT_TRUE(std::isfinite(f));
+    EXPECT_NEAR(f / want, 1, 1e-5);
+  }
+}
+
+TEST(He, OppositeGrazingPairStaysPositive) {
+  const Model m = Model::Parse("he");
+  const auto b = m.Make<double>();
+  const std::vector<double> p = m.Info().Defaults();
+  const OppositeGrazing g;
+  const double pdf = b->Pdf(p.data(), g.wo, g.wi), pdf_exact = b->Pdf(p.data(), g.wo_exact, g.wi_exact);
+  ASSERT_GT(pdf_exact, 0);
+  EXPECT_NEAR(pdf / pdf_exact, 1, 1e-4);
+  const Rgb<double> f = b->Eval(p.data(), g.wi, g.wo), f_exact = b->Eval(p.data(), g.wi_exact, g.wo_exact);
+  for (int c = 0; c < 3; ++c) {
+    ASSERT_TRUE(std::isfinite(f[c]));
+    EXPECT_GE(f[c], p[11 + c] * kInvPi);  // at least the uniform-diffuse term
+    EXPECT_NEAR(f[c] / f_exact[c], 1, 1e-4);
+  }
+}
+
 // --- Poulin & Fournier 1990 ----------------------------------------------------
 
 // Independent computation of the cross-section average: points along one
@@ -505,6 +549,67 @@ TEST(PoulinFournier, HighlightSpreadsAcrossTheCylinders) {
   const double along = b->Eval(p.data(), n, DirectionFromAngles(Deg(40), 0))[0];
   EXPECT_GT(across, 0.1);
   EXPECT_LT(along, 1e-6 * across);
+}
+
+// Both directions grazing (mu = 1e-12) from the same side, across the
+// cylinders: only a 2e-6 rad cap of each cylinder top is lit and seen (the
+// plane is in shadow), and the value is that cap's integral divided by
+// P mu_i mu_o = 2.5e-24. Reference: the cap edges solved independently from
+// the tangent-ray condition (distance from the neighbour's centre to the ray
+// = 1) and the facing condition, and the cap integrated in long double.
+TEST(PoulinFournier, GrazingPairMatchesTheLitCap) {
+  const Model m = Model::Parse("poulin_fournier");
+  const auto b = m.Make<double>();
+  std::vector<double> p = ParseParams(m.Info(), "kd=0.1,ks=0.5,e=50,d=0.5,h=1");
+  p[9] = kPi / 2;  // cylinder axis along y, as the stress sweep sets it
+  const Eigen::Vector3d wi_w(1, 0, 1e-12), wo_w(0.50484610459985702, -0.86320936664887404, 1e-12);
+  const Eigen::Vector3d wi = PoulinFournier::ToCylinderFrame(p.data(), wi_w);
+  const Eigen::Vector3d wo = PoulinFournier::ToCylinderFrame(p.data(), wo_w);
+  ASSERT_LT(wi.x(), 0);
+  ASSERT_LT(wo.x(), 0);
+  const long double period = 2.5L;  // 2 sin(theta_m) + d with h = 1
+  // Both directions come from -x: the neighbour at (-P, 0) shadows; the arc
+  // point (sin t, cos t) is free iff the ray towards the light passes at
+  // distance >= 1 from it. Lower edge of the free cap by bisection.
+  auto lower_edge = [&](const Eigen::Vector3d& w) {
+    const long double r = std::hypot((long double)w.x(), (long double)w.z());
+    const long double lx = w.x() / r, lz = w.z() / r;
+    auto blocked = [&](long double t) {
+      const long double cx = -period - std::sin(t), cz = -std::cos(t);
+      return std::abs(cx * lz - cz * lx) < 1;
+    };
+    long double lo = -0.5L, hi = 0;  // blocked at lo, free at hi
+    for (int it = 0; it < 200; ++it) {
+      const long double mid = (lo + hi) / 2;
+      (blocked(mid) ? lo : hi) = mid;
+    }
+    return hi;
+  };
+  // Facing edge: w.n = x sin t + z cos t = 0.
+  auto facing_edge = [](const Eigen::Vector3d& w) { return std::atan2((long double)w.z(), -(long double)w.x()); };
+  const long double lo = std::max(lower_edge(wi), lower_edge(wo));
+  const long double hi = std::min(facing_edge(wi), facing_edge(wo));
+  ASSERT_LT(lo, hi);
+  const int n = 20000;
+  Rgb<double> want = Rgb<double>::Zero();
+  for (int j = 0; j < n; ++j) {
+    const long double t = lo + (hi - lo) * (j + 0.5L) / n;
+    const long double st = std::sin(t), ct = std::cos(t);
+    const long double ci = wi.x() * st + wi.z() * ct, co = wo.x() * st + wo.z() * ct;
+    const long double rr = 2 * ci * (wo.x() * st + wo.z() * ct) - (wi.x() * wo.x() + wi.y() * wo.y() + wi.z() * wo.z());
+    const long double lobe = rr > 0 ? std::pow(rr, 50.0L) : 0.0L;
+    for (int c = 0; c < 3; ++c)
+      want[c] += double((p[c] / kPi + p[3 + c] * 52 / (2 * kPi) * lobe) * ci * co * (hi - lo) / n /
+                        (period * wi.z() * wo.z()));
+  }
+  const Rgb<double> f = b->Eval(p.data(), wi_w, wo_w);
+  for (int c = 0; c < 3; ++c) {
+    ASSERT_TRUE(std::isfinite(f[c]));
+    EXPECT_GT(want[c], 1e3);  // the cap is lit: a large positive value
+    EXPECT_NEAR(f[c] / want[c], 1, 1e-6);
+  }
+  EXPECT_GE(b->Pdf(p.data(), wo_w, wi_w), 0);
+  EXPECT_TRUE(std::isfinite(b->Pdf(p.data(), wo_w, wi_w)));
 }
 
 }  // namespace

@@ -39,12 +39,18 @@
 // R_n the mirror about n (the normalised Phong of Lafortune & Willems 1994 in
 // place of the paper's un-normalised Phong intensity, so that ks is an albedo
 // and the model is reciprocal). On the arc R_n(wi).wo = A cos(2 (theta - theta*))
-// - y_i y_o with A = r_i r_o and theta* = (alpha_i + alpha_o) / 2: the
-// diffuse part integrates in closed form,
-//   int cos(theta - alpha_i) cos(theta - alpha_o) = theta cos(alpha_i - alpha_o) / 2
-//                                                   + sin(2 theta - alpha_i - alpha_o) / 4,
-// and the specular part (no closed form for real e, the paper integrates it
-// numerically) by 24-point Gauss-Legendre panels placed on the lobe: breaks at
+// - y_i y_o with A = r_i r_o and theta* = (alpha_i + alpha_o) / 2. The
+// diffuse part, A cos(theta - alpha_i) cos(theta - alpha_o), has a closed form
+// (theta cos(alpha_i - alpha_o) / 2 + sin(2 theta - alpha_i - alpha_o) / 4), but
+// its difference of primitives cancels on the narrow lit arcs of grazing
+// pairs, so it is integrated by one 24-point Gauss-Legendre panel per
+// interval (exact to rounding for this degree-2 trigonometric polynomial),
+// with (wi.n)(wo.n) formed from the components so it never goes negative.
+// When both directions near the horizon on one side, the lit-and-seen arc
+// shrinks like sqrt(P cos) and f_r grows like cos^-1/2 towards the
+// horizon (no interreflection or finite light-source size bounds it). The
+// specular part (no closed form for real e, the paper integrates it
+// numerically) is integrated by 24-point Gauss-Legendre panels placed on the lobe: breaks at
 // theta* +- 6 s and +- 12 s, s = sqrt((A - y_i y_o) / (4 e A)) the lobe's
 // Gaussian width, and at the edges of its support and of the lit-and-seen
 // intervals. Measured against a 4000-panel reference (physical_models_test.cpp)
@@ -120,25 +126,27 @@ inline PfSet<T> PfIntersect(const PfSet<T>& s, const PfSet<T>& t) {
   return out;
 }
 
-// Lit (or seen) part of the arc, in theta, for a direction at alpha >= 0.
+// Lit (or seen) part of the arc, in theta, for a direction at alpha >= 0
+// with cos_a = cos(alpha), sin_a = sin(alpha) from the direction's components.
 template <typename T>
-inline PfSet<T> PfArcLit(const T& alpha, const T& period, const T& theta_m) {
+inline PfSet<T> PfArcLit(const T& alpha, const T& cos_a, const T& sin_a, const T& period, const T& theta_m) {
   using std::acos;
   using std::asin;
-  using std::cos;
-  using std::sin;
+  using std::sqrt;
   const T half_pi = T(kPi / 2);
   PfSet<T> lit;
   // Facing the direction (|u| < pi/2) and on the arc, in u = theta - alpha.
   const T u0 = -theta_m - alpha > -half_pi ? T(-theta_m - alpha) : T(-half_pi);
   const T u1 = theta_m - alpha < half_pi ? T(theta_m - alpha) : half_pi;
   lit.Add(u0, u1);
-  const T s_a = period * cos(alpha) - T(1);
+  const T s_a = period * cos_a - T(1);
   // s_a >= 1: the ray clears the neighbour everywhere (and asin has an
   // infinite derivative at 1).
   if (s_a < T(1)) {
-    const T u_a = asin(s_a);  // s_a > -1 since P cos(alpha) > 0
-    const T c_b = period * sin(alpha);
+    // asin(s_a) as 2 asin(sqrt((1 + s_a) / 2)) - pi/2: near grazing s_a -> -1
+    // and asin(s_a) would lose the lit width sqrt(2 P cos_a) to rounding.
+    const T u_a = T(2) * asin(sqrt(period * cos_a / T(2))) - half_pi;
+    const T c_b = period * sin_a;
     if (c_b >= T(1)) {
       lit = PfSubtract(lit, u_a, half_pi);
     } else {
@@ -226,11 +234,15 @@ class PoulinFournier {
     const T half_w = sqrt(h * (T(2) - h));  // sin(theta_m)
     const T period = T(2) * half_w + p[7];
     const T alpha = atan2(w.x(), w.z());
+    // cos and sin of alpha from the components: cos(alpha) near pi/2 would
+    // carry the rounding of alpha (1e-16) into a cosine of order w.z.
+    const T r = sqrt(w.x() * w.x() + w.z() * w.z());
+    const T cos_a = w.z() / r, sin_a = (w.x() >= T(0) ? w.x() : T(-w.x())) / r;
     if (alpha >= T(0)) {
-      arc = detail::PfArcLit(alpha, period, theta_m);
+      arc = detail::PfArcLit(alpha, cos_a, sin_a, period, theta_m);
       plane = detail::PfPlaneLit(alpha, period, half_w, h);
     } else {
-      arc = detail::PfMirrorArc(detail::PfArcLit(T(-alpha), period, theta_m));
+      arc = detail::PfMirrorArc(detail::PfArcLit(T(-alpha), cos_a, sin_a, period, theta_m));
       plane = detail::PfMirrorPlane(detail::PfPlaneLit(T(-alpha), period, half_w, h), period);
     }
   }
@@ -258,14 +270,28 @@ class PoulinFournier {
     const T cos_io = wi.z() * wo.z();
     const T norm = (e + T(2)) * T(0.5 * kInvPi);
 
-    // Diffuse on the arc, closed form.
+    // (wi.n)(wo.n) at theta from the components. On the lit-and-seen arc both
+    // are >= 0; the clamp removes rounding residue at the interval ends.
+    auto cosines = [&](const T& theta) {
+      const T st = sin(theta), ct = cos(theta);
+      const T ci = wi.x() * st + wi.z() * ct, co = wo.x() * st + wo.z() * ct;
+      return (ci > T(0) ? ci : T(0)) * (co > T(0) ? co : T(0));
+    };
+    const auto& rule = detail::PfRule();
+
+    // Diffuse on the arc: (wi.n)(wo.n) is a trigonometric polynomial of
+    // degree 2, which one 24-point Gauss-Legendre panel integrates to
+    // rounding over any interval up to pi ((2 pi)^48 / 48! < 1e-22). The closed
+    // form (difference of primitives of size 1) cancels catastrophically on
+    // the narrow lit arcs of grazing pairs, where the result is divided by
+    // the tiny P cos_i cos_o.
     T diffuse_arc = T(0);
-    const T cd = cos(ai - ao);
     for (int k = 0; k < arc.n; ++k) {
-      auto prim = [&](const T& t) { return t * cd / T(2) + sin(T(2) * t - ai - ao) / T(4); };
-      diffuse_arc += prim(arc.hi[k]) - prim(arc.lo[k]);
+      const T len = arc.hi[k] - arc.lo[k];
+      T sum = T(0);
+      for (int j = 0; j < 24; ++j) sum += T(rule.w[j]) * cosines(T(arc.lo[k] + len * T(rule.x[j])));
+      diffuse_arc += sum * len;
     }
-    diffuse_arc *= ri * ro;
 
     // Specular on the arc: R.wo = A cos(2 (theta - theta*)) - y_i y_o.
     T spec_arc = T(0);
@@ -281,7 +307,6 @@ class PoulinFournier {
       std::array<double, 7> breaks = {-t0, -12 * s, -6 * s, 0.0, 6 * s, 12 * s, t0};
       for (double& b : breaks) b = theta_star + std::clamp(b, -t0, t0);
       std::sort(breaks.begin(), breaks.end());
-      const auto& rule = detail::PfRule();
       for (int k = 0; k < arc.n; ++k) {
         for (int b = 0; b + 1 < 7; ++b) {
           const T lo = arc.lo[k] > T(breaks[b]) ? arc.lo[k] : T(breaks[b]);
@@ -292,12 +317,11 @@ class PoulinFournier {
           for (int j = 0; j < 24; ++j) {
             const T theta = lo + len * T(rule.x[j]);
             const T base = amp * cos(T(2) * theta - ai - ao) - yy;
-            sum += T(rule.w[j]) * PowLobe(base, e) * cos(theta - ai) * cos(theta - ao);
+            sum += T(rule.w[j]) * PowLobe(base, e) * cosines(theta);
           }
           spec_arc += sum * len;
         }
       }
-      spec_arc *= amp;
     }
 
     // The plane strip between the cylinders.
