@@ -30,7 +30,6 @@ using json = nlohmann::json;
 
 constexpr double kDegree = kPi / 180;
 
-json Num(double v) { return std::isfinite(v) ? json(v) : json(nullptr); }
 
 // A material as a model and parameters (fitted ones from their fit's file).
 LoadedModel MaterialModel(const MaterialSpec& m, const RunContext& ctx) {
