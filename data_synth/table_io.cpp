@@ -219,13 +219,13 @@ BrdfTable ReadTableCsv(const std::string& path) {
     }
     table.rows.push_back(r);
   }
-  if (zero_sigma_line > 0) {
-    if (positive_sigma)
-      throw std::runtime_error(path + ":" + std::to_string(zero_sigma_line) +
-                               ": sigma is 0 here but positive elsewhere (a zero uncertainty would give the sample "
-                               "infinite weight; 0 is allowed only in every row of a noiseless table)");
-    table.has_sigma = false;  // noiseless data: fitted unweighted
-  }
+  if (zero_sigma_line > 0 && positive_sigma)
+    throw std::runtime_error(path + ":" + std::to_string(zero_sigma_line) +
+                             ": sigma is 0 here but positive elsewhere (a zero uncertainty would give the sample "
+                             "infinite weight; 0 is allowed only in every row of a noiseless table)");
+  // Sigma columns without a positive value (noiseless data, or no rows at
+  // all) carry no weights: such a table is fitted unweighted.
+  if (!positive_sigma) table.has_sigma = false;
   return table;
 }
 

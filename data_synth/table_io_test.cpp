@@ -143,5 +143,18 @@ TEST_F(TableIoTest, AllZeroSigmaIsANoiselessTable) {
   EXPECT_EQ(t.rows[1].f[2], 3.0);
 }
 
+// A table with sigma columns but no rows reads as unweighted, so it
+// round-trips through the writer (which always writes sigma columns).
+TEST_F(TableIoTest, EmptyTableRoundTrips) {
+  const BrdfTable t = ReadTableCsv(Write("empty.csv", "theta_i,phi_i,theta_o,phi_o,f\n# no rows\n"));
+  EXPECT_TRUE(t.rows.empty());
+  EXPECT_FALSE(t.has_sigma);
+  const std::string back = (dir_ / "back.csv").string();
+  WriteTableCsv(back, t);
+  const BrdfTable u = ReadTableCsv(back);
+  EXPECT_TRUE(u.rows.empty());
+  EXPECT_FALSE(u.has_sigma);
+}
+
 }  // namespace
 }  // namespace brdfkit::synth
