@@ -9,26 +9,12 @@
 #include <sys/wait.h>
 
 #include "brdf/model.h"
+#include "tests/cli_util.h"
 
 namespace {
 
-struct CliRun {
-  int code;
-  std::string out;  // stdout and stderr
-};
-
-CliRun Brdfkit(const std::string& args) {
-  const std::string cmd = std::string(BRDFKIT_EXE) + " " + args + " 2>&1";
-  FILE* pipe = popen(cmd.c_str(), "r");
-  CliRun r{-1, ""};
-  if (!pipe) return r;
-  std::array<char, 4096> buf;
-  std::size_t n;
-  while ((n = fread(buf.data(), 1, buf.size(), pipe)) > 0) r.out.append(buf.data(), n);
-  const int status = pclose(pipe);
-  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return r;
-}
+using brdfkit::test::Brdfkit;
+using brdfkit::test::CliRun;
 
 TEST(Cli, ModelsJsonListsEveryModelWithItsTable) {
   const CliRun r = Brdfkit("models --json");

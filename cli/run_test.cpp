@@ -290,15 +290,8 @@ TEST(Run, EveryFigureOfTheReportRendersInAHeadlessBrowser) {
                           " --headless --no-sandbox --disable-gpu --disable-quic --no-first-run "
                           "--disable-background-networking --disable-component-update --disable-sync "
                           "--user-data-dir=" + (d / "profile").string() +
-                          " --virtual-time-budget=10000 --dump-dom file://" + (d / "out" / "report.html").string() +
-                          " 2>/dev/null";
-  FILE* pipe = popen(cmd.c_str(), "r");
-  ASSERT_NE(pipe, nullptr);
-  std::string dom;
-  char buf[4096];
-  std::size_t n;
-  while ((n = fread(buf, 1, sizeof buf, pipe)) > 0) dom.append(buf, n);
-  pclose(pipe);
+                          " --virtual-time-budget=10000 --dump-dom file://" + (d / "out" / "report.html").string();
+  const std::string dom = brdfkit::test::Shell("(" + cmd + ") 2>/dev/null").out;  // the page only, not Chromium's log
   const std::string want = "data-figures-rendered=\"" + std::to_string(figures) + "/" + std::to_string(figures) + "\"";
   EXPECT_NE(dom.find(want), std::string::npos) << "expected " << want << " in the rendered page; body starts: "
                                                << dom.substr(dom.find("<body"), 200);

@@ -25,15 +25,14 @@
 #include "brdf/params.h"
 #include "fit/fit.h"
 
+#include "tests/cli_util.h"
+
 namespace brdfkit {
 namespace {
 
 namespace fs = std::filesystem;
 
-struct ToolRun {
-  int code = -1;
-  std::string out;  // stdout and stderr
-};
+using ToolRun = test::CliRun;
 
 // Single-quotes an argument for sh (paths may hold any byte but NUL).
 std::string Quote(const std::string& s) {
@@ -45,24 +44,10 @@ std::string Quote(const std::string& s) {
 ToolRun Brdfkit(const std::vector<std::string>& args) {
   std::string cmd = Quote(BRDFKIT_EXE);
   for (const std::string& a : args) cmd += " " + Quote(a);
-  cmd += " 2>&1";
-  ToolRun r;
-  FILE* pipe = popen(cmd.c_str(), "r");
-  if (!pipe) return r;
-  std::array<char, 4096> buf;
-  std::size_t n;
-  while ((n = fread(buf.data(), 1, buf.size(), pipe)) > 0) r.out.append(buf.data(), n);
-  const int status = pclose(pipe);
-  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return r;
+  return test::Shell(cmd);
 }
 
-std::string Slurp(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
+std::string Slurp(const fs::path& p) { return test::ReadText(p); }
 
 void Write(const fs::path& p, const std::string& text) {
   std::ofstream(p, std::ios::binary) << text;
