@@ -33,9 +33,7 @@ Instrument MerlInstrument(double source_deg, double detector_deg) {
   return inst;
 }
 
-// Arguments: source and detector angular radius in tenths of a degree.
-void BM_MerlGrid(benchmark::State& state) {
-  const Instrument inst = MerlInstrument(state.range(0) / 10.0, state.range(1) / 10.0);
+void Run(benchmark::State& state, const Instrument& inst) {
   const Model model = Model::Parse("lambert+ggx");
   const std::vector<double> p = ParseParams(model.Info(), "lambert.albedo=0.1:0.2:0.3,ggx.alpha=0.15");
   const ExpandedPlan plan = ExpandPlan(inst.plan);
@@ -51,14 +49,32 @@ void BM_MerlGrid(benchmark::State& state) {
   state.counters["pairs"] = double(plan.pairs.size());
   state.counters["samples/s"] =
       benchmark::Counter(double(plan.pairs.size()) * double(state.iterations()), benchmark::Counter::kIsRate);
-  state.counters["order"] = report.order;
+  state.counters["src_deg"] = report.source_degree;
+  state.counters["det_deg"] = report.detector_degree;
   state.counters["quad_rel_err"] = report.quadrature_error;
-  state.counters["mean_order"] = report.mean_order;
+  state.counters["evals_per_pair"] = report.mean_evaluations;
   state.counters["pair_rel_err"] = report.pair_error;
+  state.counters["at_max"] = double(report.pairs_at_max_order);
+  state.counters["at_max_err"] = report.max_order_error;
+  state.counters["horizon"] = double(report.horizon_crossing);
 }
-BENCHMARK(BM_MerlGrid)->Args({0, 0})->Args({0, 10})->Args({5, 10})->Unit(benchmark::kSecond)->UseRealTime()->Iterations(1);
 
-// One MeasuredBrdf call (order 2: 64 x 64 BRDF evaluations), double and Jet.
+// Arguments: source and detector angular radius in tenths of a degree.
+void BM_MerlGrid(benchmark::State& state) { Run(state, MerlInstrument(state.range(0) / 10.0, state.range(1) / 10.0)); }
+BENCHMARK(BM_MerlGrid)->Args({0, 0})->Args({0, 10})->Args({5, 10})->Args({10, 10})->Unit(benchmark::kSecond)->UseRealTime()->Iterations(1);
+
+// Baseline in the same run: the MERL grid at stride 2 (182,250 pairs), 0.5
+// degree source and 1 degree detector, with the automatic order (argument
+// 0) and with the product rule of a fixed order (argument n).
+void BM_MerlStride2(benchmark::State& state) {
+  Instrument inst = MerlInstrument(0.5, 1.0);
+  for (int& s : inst.plan.merl_stride) s = 2;
+  inst.quadrature.order = static_cast<int>(state.range(0));
+  Run(state, inst);
+}
+BENCHMARK(BM_MerlStride2)->Arg(0)->Arg(2)->Arg(3)->Unit(benchmark::kSecond)->UseRealTime()->Iterations(1);
+
+// One MeasuredBrdf call (order 2: 16 x 16 BRDF evaluations), double and Jet.
 template <class T>
 void BM_MeasuredBrdf(benchmark::State& state) {
   const Instrument inst = MerlInstrument(0.5, 1.0);

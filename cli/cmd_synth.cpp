@@ -1,6 +1,7 @@
 // `brdfkit synth`: a virtual gonioreflectometer (or camera) measuring an
 // analytic BRDF through the measurement equation, with the instrument's
 // apertures and imperfections.
+#include <algorithm>
 #include <cstdio>
 #include <iostream>
 
@@ -74,9 +75,16 @@ void RegisterSynth(CLI::App& app) {
       const synth::SynthReport& s = r.report;
       std::fprintf(stderr,
                    "synth: %zu pairs measured, %zu not measurable, %zu saturated; aperture quadrature order %d "
-                   "(estimated relative error %.2e over %zu pairs, %zu pairs cross the horizon); %.2f s\n",
+                   "(estimated relative error %.2e over %zu pairs, %zu pairs cut by the horizon); %.2f s\n",
                    s.measured, s.not_measured, s.saturated, s.order, s.quadrature_error, s.checked_pairs,
                    s.horizon_crossing, s.seconds);
+      if (s.mean_evaluations > 0)
+        std::fprintf(stderr,
+                     "synth: automatic order: source rule up to degree %d, detector up to %d, %.0f BRDF evaluations "
+                     "per pair; %zu pairs (%.2f %%) stopped above the tolerance, largest estimate %.2e\n",
+                     s.source_degree, s.detector_degree, s.mean_evaluations, s.pairs_at_max_order,
+                     100.0 * double(s.pairs_at_max_order) / double(std::max<std::size_t>(s.measured, 1)),
+                     s.max_order_error);
       for (const std::string& out : outs) std::fprintf(stderr, "wrote %s and %s.json\n", out.c_str(), out.c_str());
     }
   });

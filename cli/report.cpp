@@ -164,8 +164,9 @@ std::string SynthHtml(const json& r) {
          " pairs measured, " + std::to_string(r.at("not_measured").get<long long>()) + " not measurable, " +
          std::to_string(r.at("saturated").get<long long>()) + " saturated; aperture quadrature order " +
          std::to_string(r.at("aperture_order").get<int>()) + " (estimated relative error " +
-         Num(r.at("quadrature_error"), "%.2g") + ")" + (r.at("noisy").get<bool>() ? ", with sensor noise" : "") +
-         ".</p>";
+         Num(r.at("quadrature_error"), "%.2g") + ", " +
+         std::to_string(r.value("pairs_above_tolerance", 0LL)) + " pairs above the tolerance)" +
+         (r.at("noisy").get<bool>() ? ", with sensor noise" : "") + ".</p>";
 }
 
 std::string AlbedoHtml(const json& r) {

@@ -313,6 +313,7 @@ TaskOutcome RunSynth(const TaskSpec& t, const RunContext& ctx) {
               {"saturated", rep.saturated},
               {"aperture_order", rep.order},
               {"quadrature_error", rep.quadrature_error},
+              {"pairs_above_tolerance", rep.pairs_at_max_order},
               {"noisy", r.noisy},
               {"seed", t.seed},
               {"synth_seconds", rep.seconds}};

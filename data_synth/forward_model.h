@@ -22,9 +22,9 @@
 // The numerator uses cosines about the TRUE sample normal (a tilted sample
 // receives and sends a different projected flux); the normalisation uses the
 // instrument's NOMINAL frame, as a real instrument calibrated without
-// knowing its misalignment does. Cones are evaluated with the BRDF set to
-// zero below the true horizon; a cone that crosses the horizon has a kink in
-// its integrand and converges only algebraically.
+// knowing its misalignment does. No light arrives from, or leaves towards,
+// below the true horizon: a cone the horizon cuts is integrated over its part
+// above it (PlaceCone).
 //
 // Templated on the scalar T of the BRDF parameters (double or ceres::Jet),
 // directions stay double: fits can optimise through this model.
@@ -44,8 +44,13 @@ namespace brdfkit::synth {
 // weights in sr (their sum is the cone's solid angle, 2 pi (1 - cos r)).
 struct ConeRule {
   double angular_radius = 0;
+  int degree = 3;  // exact for polynomials of this degree in the tangent offsets
   std::vector<Eigen::Vector3d> offsets;
   std::vector<double> weights;
+  // Gauss-Legendre nodes and weights on [0, 1] for the part of a cone above
+  // a horizon (PlaceCone), in each of its two variables: (k + 1) / 2 of
+  // them, so the cut rule has about as many nodes as the whole one.
+  std::vector<double> clip_nodes, clip_weights;
   bool IsPoint() const { return offsets.size() == 1 && angular_radius == 0; }
 };
 
@@ -58,6 +63,12 @@ struct ApertureQuadrature {
 
 // Order-n rule over a cone of angular radius `radius` (rad); see above.
 ConeRule MakeConeRule(double radius, int order);
+// The rule of odd degree k >= 3: k + 1 trapezoid nodes in beta times
+// (k - 1) / 4 + 1 Gauss-Legendre nodes in u, exact for polynomials of degree
+// k in the tangent offsets (u ~ rho^2 / 2, so u needs degree (k - 1) / 2).
+// Order n is degree 4n - 1; the degrees in between (5, 9, 13, ...: 12, 30,
+// 56 nodes) let the automatic order rise in smaller steps.
+ConeRule MakeConeRuleOfDegree(double radius, int degree);
 // Rules for the instrument's source and detector cones and its sample tilt.
 ApertureQuadrature MakeApertureQuadrature(const Instrument& inst, int order);
 
@@ -75,34 +86,31 @@ inline Eigen::Matrix3d ArmFrame(const Eigen::Vector3d& w) {
 }
 
 // One cone placed on the instrument: node directions in the sample frame with
-// weight * cos(theta) about the true normal (nodes below the true horizon
-// dropped), and the nominal projected solid angle sum weight * max(0, cos)
-// about the instrument's normal.
+// weight * cos(theta) about the true normal, and the nominal projected solid
+// angle sum weight * cos(theta) about the instrument's normal.
+//
+// A cone that reaches below a horizon (the true one for the nodes, the
+// nominal one for the normalisation) is integrated over its part above that
+// horizon only, with a rule fitted to that part, in the spherical
+// coordinates (theta, phi) of the horizon's frame: theta = theta_a +
+// r sin(psi) from the cone's top row down to the horizon, and phi across the
+// cone's width at that theta, Gauss-Legendre in psi and in phi. The width
+// opens and closes as a square root at the cone's top and bottom rows, and
+// is smooth in psi, so the error still falls geometrically with the order;
+// dropping the nodes below the horizon instead leaves a kink and algebraic
+// convergence. (A cone over 45 degrees wide that also covers the normal
+// has one more kink, where it starts to span every phi.)
 struct PlacedCone {
   std::vector<Eigen::Vector3d> directions;
   std::vector<double> weights;
   double nominal_projected = 0;
+  bool clipped = false;  // the true horizon cuts the cone
 };
 
 // `actual` is where the arm really points (jitter), `nominal` where the
 // instrument believes it points; usually the same.
-inline PlacedCone PlaceCone(const ConeRule& rule, const Eigen::Vector3d& actual, const Eigen::Vector3d& nominal,
-                            const Eigen::Matrix3d& sample_from_lab) {
-  PlacedCone c;
-  c.directions.reserve(rule.offsets.size());
-  c.weights.reserve(rule.offsets.size());
-  const Eigen::Matrix3d fa = ArmFrame(actual);
-  const Eigen::Matrix3d fn = ArmFrame(nominal);
-  for (std::size_t k = 0; k < rule.offsets.size(); ++k) {
-    const Eigen::Vector3d wn = fn * rule.offsets[k];
-    c.nominal_projected += rule.weights[k] * std::max(0.0, wn.z());
-    const Eigen::Vector3d ws = sample_from_lab * (fa * rule.offsets[k]);
-    if (ws.z() <= 0) continue;  // below the true horizon: f_r = 0 there
-    c.directions.push_back(ws);
-    c.weights.push_back(rule.weights[k] * ws.z());
-  }
-  return c;
-}
+PlacedCone PlaceCone(const ConeRule& rule, const Eigen::Vector3d& actual, const Eigen::Vector3d& nominal,
+                     const Eigen::Matrix3d& sample_from_lab);
 
 template <class T>
 struct ApertureIntegral {
@@ -142,5 +150,43 @@ Rgb<T> MeasuredBrdf(const Bxdf<T>& bxdf, const T* params, const Eigen::Vector3d&
   if (!(norm > 0)) return Rgb<T>::Constant(T(0));  // no nominal flux: not a measurable geometry
   return a.weighted / T(norm);
 }
+
+// Automatic order: each cone's rule rises on its own, per pair, through the
+// degrees 3, 5, 7, ... (levels L = 1, 2, 3, ...: degree 2 L + 1). I(a, b) is
+// f_hat from the product of the level-a source rule and the level-b
+// detector rule. From (a, b) = (1, 1): compute I(a, b), I(a+1, b) and
+// I(a, b+1); the steps e_s = |I(a+1, b) - I(a, b)| and
+// e_d = |I(a, b+1) - I(a, b)| (relative to the result, max over channels)
+// estimate the error each cone's rule leaves. Once e_s + e_d is below the
+// tolerance the result is I(a+1, b) + I(a, b+1) - I(a, b) (both leading
+// errors removed) with e_s + e_d as its error estimate; otherwise the level
+// of each cone whose step exceeds half the tolerance is raised, up to the
+// ladder's top. A pair stops early, unconverged, when the ratio of a cone's
+// last two steps predicts that it would not reach the tolerance even two
+// levels past the top (a lobe narrower than the cone). A small
+// source (or a collimated one, a single node) thereby stays low while the
+// detector rises: a typical pair costs I(1,1) + I(2,1) + I(1,2) + I(2,2) +
+// I(1,3) = 16 + 48 + 48 + 144 + 64 BRDF evaluations, where raising one common
+// order until two successive orders agree costs 16 + 256 + 1,296.
+struct ApertureLadder {
+  std::vector<ConeRule> source, detector;  // [L - 1]: the rule of degree 2 L + 1 (a point cone has one entry)
+  Eigen::Matrix3d sample_from_lab = Eigen::Matrix3d::Identity();
+};
+// Rules of degree 3, 5, ... up to the given degrees (a point cone keeps its single node).
+ApertureLadder MakeApertureLadder(const Instrument& inst, int max_source_degree, int max_detector_degree);
+
+struct AdaptiveMeasurement {
+  Rgb<double> f = Rgb<double>::Zero();  // f_hat
+  double norm = 0;    // nominal projected solid angles, source x detector, at the highest orders used (sr^2)
+  double error = 0;   // relative error estimate e_s + e_d
+  int source_degree = 0, detector_degree = 0;  // highest rule degrees used (0: a point cone)
+  bool converged = false;  // error below the tolerance; false: the ladder's top was reached, or would not do
+  long evaluations = 0;    // BRDF evaluations
+};
+// f_hat with cones around the `actual` arm directions (jitter) normalised by
+// the `nominal` ones, as PlaceCone.
+AdaptiveMeasurement MeasureAdaptive(const Bxdf<double>& bxdf, const double* params, const Eigen::Vector3d& actual_i,
+                                    const Eigen::Vector3d& nominal_i, const Eigen::Vector3d& actual_o,
+                                    const Eigen::Vector3d& nominal_o, const ApertureLadder& ladder, double tolerance);
 
 }  // namespace brdfkit::synth

@@ -45,12 +45,23 @@ nlohmann::json Sidecar(const Instrument& inst, const SynthResult& result, const 
   j["seed"] = prov.seed;
   if (!prov.command.empty()) j["command"] = prov.command;
   j["instrument"] = InstrumentToJson(inst);
-  j["quadrature"] = {{"order", r.order},
-                     {"nodes_per_cone_side", 4 * r.order * r.order},
+  const bool automatic = inst.quadrature.order == 0;
+  j["quadrature"] = {{"method", automatic ? "per pair, source and detector cone rules raised separately"
+                                          : "product of the source and detector cone rules of one order"},
+                     {"order", r.order},
+                     {"source_degree", r.source_degree},
+                     {"detector_degree", r.detector_degree},
                      {"estimated_relative_error", r.quadrature_error},
-                     {"error_estimate", "max over checked pairs of |I_n - I_(n+1)| / |I_(n+1)|"},
+                     {"error_estimate", automatic ? "max over checked pairs of e_s + e_d, relative"
+                                                  : "max over checked pairs of |I_n - I_(n+1)| / |I_(n+1)|"},
                      {"checked_pairs", r.checked_pairs},
                      {"horizon_crossing_pairs", r.horizon_crossing}};
+  if (automatic && r.mean_evaluations > 0) {
+    j["quadrature"]["mean_brdf_evaluations_per_pair"] = r.mean_evaluations;
+    j["quadrature"]["largest_pair_error"] = r.pair_error;
+    j["quadrature"]["pairs_at_max_order"] = r.pairs_at_max_order;
+    j["quadrature"]["max_order_error"] = r.max_order_error;
+  }
   j["counts"] = {{"planned", result.samples.size()},
                  {"measured", r.measured},
                  {"not_measured", r.not_measured},

@@ -4,6 +4,7 @@
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <fstream>
@@ -59,15 +60,13 @@ std::vector<PlannedPair> ReadDirectionList(const std::string& path, bool degrees
   return out;
 }
 
-// A cone within 3 radii of the horizon: the cosines (and Smith masking)
-// vanish there, so the integrand's Taylor radius is the distance to the
-// horizon and the rule converges slowly, or not at all across the kink.
-// Such pairs do not steer the order choice; their count is reported.
-bool NearHorizon(const Eigen::Vector3d& w, double radius, const Eigen::Matrix3d& r) {
+// A cone that reaches below the true horizon: integrated over its part above
+// it (PlaceCone); counted in the report.
+bool CrossesHorizon(const Eigen::Vector3d& w, double radius, const Eigen::Matrix3d& r) {
   if (radius == 0) return false;
   const Eigen::Vector3d ws = r * w;
   const double theta = std::atan2(std::hypot(ws.x(), ws.y()), ws.z());
-  return theta + 3 * radius >= kPi / 2;
+  return theta + radius > kPi / 2;
 }
 
 double SourceRadius(const Instrument& inst) {
@@ -170,18 +169,52 @@ OrderChoice ChooseApertureOrder(const Instrument& inst, const Bxdf<double>& bxdf
     const PlannedPair& p = plan.pairs[n];
     const Eigen::Vector3d wi = DirectionFromAngles(p.theta_i, p.phi_i), wo = DirectionFromAngles(p.theta_o, p.phi_o);
     if (!(wi.z() > 0 && wo.z() > 0)) continue;
-    if (NearHorizon(wi, rs, r) || NearHorizon(wo, rd, r)) {
-      ++out.horizon_crossing;
-      continue;
-    }
+    if (CrossesHorizon(wi, rs, r) || CrossesHorizon(wo, rd, r)) ++out.horizon_crossing;
     eligible.push_back(n);
   }
   std::vector<std::size_t> checked;
   const std::size_t step = std::max<std::size_t>(1, (eligible.size() + max_checked - 1) / std::max<std::size_t>(max_checked, 1));
   for (std::size_t k = 0; k < eligible.size(); k += step) checked.push_back(eligible[k]);
   out.checked = checked.size();
-  if (checked.empty()) return out;
-
+  const QuadratureSettings& s = inst.quadrature;
+  const auto degree = [](double radius, int d) { return radius > 0 ? d : 0; };
+  if (s.order > 0) {
+    out.order = s.order;
+    out.source_degree = degree(rs, 4 * s.order - 1);
+    out.detector_degree = degree(rd, 4 * s.order - 1);
+  }
+  if (checked.empty()) return out;  // nothing measurable: no error to estimate
+  if (s.order == 0) {
+    const ApertureLadder ladder = MakeApertureLadder(inst, 4 * s.max_order - 1, 4 * s.max_order - 1);
+    std::vector<AdaptiveMeasurement> m(checked.size());
+    tbb::parallel_for(tbb::blocked_range<std::size_t>(0, checked.size(), 16), [&](const auto& range) {
+      for (std::size_t k = range.begin(); k < range.end(); ++k) {
+        const PlannedPair& p = plan.pairs[checked[k]];
+        const Eigen::Vector3d wi = DirectionFromAngles(p.theta_i, p.phi_i), wo = DirectionFromAngles(p.theta_o, p.phi_o);
+        m[k] = MeasureAdaptive(bxdf, params, wi, wi, wo, wo, ladder, s.tolerance);
+      }
+    });
+    // Caps: the degrees 99 % of the checked pairs need. The few pairs that
+    // need more (a lobe narrower than the cones, as at grazing specular
+    // geometries, where the half vector turns 1 / (2 cos theta) times faster
+    // than the arms) would otherwise set the orders of every pair; they stop
+    // at the caps, and the measurement counts them with their error.
+    std::vector<int> so, dor;
+    for (const AdaptiveMeasurement& a : m) {
+      so.push_back(a.source_degree);
+      dor.push_back(a.detector_degree);
+    }
+    const std::size_t q = (m.size() * 99 + 99) / 100 - 1;
+    std::nth_element(so.begin(), so.begin() + q, so.end());
+    std::nth_element(dor.begin(), dor.begin() + q, dor.end());
+    out.source_degree = so[q];
+    out.detector_degree = dor[q];
+    for (const AdaptiveMeasurement& a : m)
+      if (a.converged && a.source_degree <= out.source_degree && a.detector_degree <= out.detector_degree)
+        out.error = std::max(out.error, a.error);
+    out.order = (std::max(out.source_degree, out.detector_degree) + 1 + 3) / 4;
+    return out;
+  }
   auto values = [&](int order) {
     const ApertureQuadrature q = MakeApertureQuadrature(inst, order);
     std::vector<Rgb<double>> v(checked.size());
@@ -191,29 +224,15 @@ OrderChoice ChooseApertureOrder(const Instrument& inst, const Bxdf<double>& bxdf
     });
     return v;
   };
-  auto difference = [&](const std::vector<Rgb<double>>& a, const std::vector<Rgb<double>>& b) {
-    double worst = 0;
-    for (std::size_t k = 0; k < a.size(); ++k) {
-      const double scale = b[k].abs().maxCoeff();
-      if (!(scale > 0)) continue;  // black in every channel at both orders: nothing to compare
-      worst = std::max(worst, (a[k] - b[k]).abs().maxCoeff() / scale);
-    }
-    return worst;
-  };
-  const QuadratureSettings& s = inst.quadrature;
-  if (s.order > 0) {
-    out.order = s.order;
-    out.error = difference(values(s.order), values(s.order + 1));
-    return out;
+  double worst = 0;
+  const std::vector<Rgb<double>> a = values(s.order), b = values(s.order + 1);
+  for (std::size_t k = 0; k < a.size(); ++k) {
+    const double scale = b[k].abs().maxCoeff();
+    if (!(scale > 0)) continue;  // black in every channel at both orders: nothing to compare
+    worst = std::max(worst, (a[k] - b[k]).abs().maxCoeff() / scale);
   }
-  std::vector<Rgb<double>> lower = values(1);
-  for (int n = 1;; ++n) {
-    std::vector<Rgb<double>> higher = values(n + 1);
-    out.order = n;
-    out.error = difference(lower, higher);
-    if (out.error < s.tolerance || n >= s.max_order) return out;
-    lower = std::move(higher);
-  }
+  out.error = worst;
+  return out;
 }
 
 SynthResult Synthesize(const Instrument& inst, const Model& model, const std::vector<double>& params,
@@ -235,20 +254,18 @@ SynthResult Synthesize(const Instrument& inst, const Model& model, const std::ve
   result.report.checked_pairs = choice.checked;
   result.report.horizon_crossing = choice.horizon_crossing;
 
-  // Per-pair order: with the automatic order each pair starts at order 1 and
-  // goes up, order by order, until two successive orders agree to the
-  // tolerance (relative, max over channels) or the order chosen above is
-  // reached; most pairs stop long before the worst pair's order. A fixed
-  // order from the settings is used as it is.
-  const int max_order = choice.order;
-  const bool per_pair = inst.quadrature.order == 0 && max_order > 1;
-  std::vector<ApertureQuadrature> rules;
-  for (int n = 1; n <= max_order; ++n) rules.push_back(MakeApertureQuadrature(inst, n));
-  const ApertureQuadrature& q = rules.back();
-  const double rs = SourceRadius(inst), rd = inst.detector.angular_radius;
-  const Eigen::Matrix3d tilt = inst.sample.SampleFromLab();
-  std::vector<int> pair_order(per_pair ? result.plan.pairs.size() : 0, 0);
-  std::vector<double> pair_error(pair_order.size(), 0.0);
+  // Automatic order: every pair raises each cone's rule on its own
+  // (MeasureAdaptive) up to the degrees the checked pairs needed. A fixed
+  // order from the settings is the product rule of that order.
+  const bool adaptive = inst.quadrature.order == 0 && (choice.source_degree > 0 || choice.detector_degree > 0);
+  const ApertureLadder ladder =
+      MakeApertureLadder(inst, std::max(3, choice.source_degree), std::max(3, choice.detector_degree));
+  const ApertureQuadrature q = MakeApertureQuadrature(inst, choice.order);
+  result.report.source_degree = choice.source_degree;
+  result.report.detector_degree = choice.detector_degree;
+  std::vector<long> pair_evaluations(adaptive ? result.plan.pairs.size() : 0, 0);
+  std::vector<double> pair_error(pair_evaluations.size(), 0.0);
+  std::vector<char> pair_converged(pair_evaluations.size(), 0);
   const Imperfections& m = inst.imperfections;
   const SensorModel sensor(m, inst.detector.exposure_time);
   const bool noisy = m.AnyNoise();
@@ -271,65 +288,54 @@ SynthResult Synthesize(const Instrument& inst, const Model& model, const std::ve
       SampleRng rng(seed, n);
       const Eigen::Vector3d ai = JitterDirection(wi, m.jitter_source, rng);
       const Eigen::Vector3d ao = JitterDirection(wo, m.jitter_detector, rng);
-      const auto integrate = [&](const ApertureQuadrature& rule) {
-        const PlacedCone src = PlaceCone(rule.source, ai, wi, rule.sample_from_lab);
-        const PlacedCone det = PlaceCone(rule.detector, ao, wo, rule.sample_from_lab);
-        return IntegrateApertures(*bxdf, params.data(), src, det);
-      };
-      ApertureIntegral<double> a = integrate(per_pair ? rules.front() : q);
-      if (per_pair) {
-        int order = 1;
-        double err = 0;
-        while (order < max_order) {
-          ApertureIntegral<double> b = integrate(rules[order]);
-          ++order;
-          const double na = a.Norm(), nb = b.Norm();
-          // |I_n - I_(n-1)| / |I_n|: the error of order n - 1, an upper estimate for order n.
-          const double scale = nb > 0 ? (b.weighted / nb).abs().maxCoeff() : 0.0;
-          err = scale > 0 && na > 0 ? (b.weighted / nb - a.weighted / na).abs().maxCoeff() / scale : 0.0;
-          a = std::move(b);
-          if (err < inst.quadrature.tolerance) break;
-        }
-        pair_order[n] = order;
-        pair_error[n] = err;
+      Rgb<double> weighted;
+      double norm;
+      if (adaptive) {
+        const AdaptiveMeasurement a =
+            MeasureAdaptive(*bxdf, params.data(), ai, wi, ao, wo, ladder, inst.quadrature.tolerance);
+        pair_error[n] = a.error;
+        pair_evaluations[n] = a.evaluations;
+        pair_converged[n] = a.converged;
+        norm = a.norm;
+        weighted = a.f * norm;
+      } else {
+        const PlacedCone src = PlaceCone(q.source, ai, wi, q.sample_from_lab);
+        const PlacedCone det = PlaceCone(q.detector, ao, wo, q.sample_from_lab);
+        const ApertureIntegral<double> a = IntegrateApertures(*bxdf, params.data(), src, det);
+        norm = a.Norm();
+        weighted = a.weighted;
       }
-      const double norm = a.Norm();
       if (!(norm > 0)) continue;  // no nominal flux reaches the detector
       out.valid = true;
       const double drift = 1 + m.drift_per_sample * double(n);
       if (!noisy) {
-        out.f = a.weighted * drift / norm;
+        out.f = weighted * drift / norm;
         continue;
       }
       for (int c = 0; c < 3; ++c) {
         const double scale = rate_scale[c] * norm;
-        const RateEstimate e = sensor.Measure(rate_scale[c] * a.weighted[c] * drift, rng);
+        const RateEstimate e = sensor.Measure(rate_scale[c] * weighted[c] * drift, rng);
         out.f[c] = e.rate / scale;
         out.sigma[c] = std::sqrt(e.variance) / scale;
         out.saturated = out.saturated || e.saturated;
       }
     }
   });
-  if (per_pair) {
-    double order_sum = 0;
+  if (adaptive) {
+    double evaluation_sum = 0;
     std::size_t counted = 0;
-    for (std::size_t n = 0; n < pair_order.size(); ++n) {
-      if (pair_order[n] == 0) continue;  // not measured
-      order_sum += pair_order[n];
+    for (std::size_t n = 0; n < pair_evaluations.size(); ++n) {
+      if (pair_evaluations[n] == 0) continue;  // not measured
+      evaluation_sum += double(pair_evaluations[n]);
       ++counted;
-      const PlannedPair& p = result.plan.pairs[n];
-      // Pairs near the horizon converge slowly (see NearHorizon): counted, not bounded.
-      if (NearHorizon(DirectionFromAngles(p.theta_i, p.phi_i), rs, tilt) ||
-          NearHorizon(DirectionFromAngles(p.theta_o, p.phi_o), rd, tilt))
-        continue;
-      // A pair that reached the order chosen above has that order's error,
-      // estimated by the choice against the next order (quadrature_error).
-      if (pair_order[n] == max_order && pair_error[n] >= inst.quadrature.tolerance)
+      if (!pair_converged[n]) {
         ++result.report.pairs_at_max_order;
-      else
+        result.report.max_order_error = std::max(result.report.max_order_error, pair_error[n]);
+      } else {
         result.report.pair_error = std::max(result.report.pair_error, pair_error[n]);
+      }
     }
-    result.report.mean_order = counted ? order_sum / double(counted) : 0.0;
+    result.report.mean_evaluations = counted ? evaluation_sum / double(counted) : 0.0;
   }
   for (const SynthSample& s : result.samples) {
     if (s.valid) ++result.report.measured;

@@ -45,20 +45,22 @@ struct SynthSample {
 };
 
 struct SynthReport {
-  int order = 1;                    // aperture quadrature order used
+  int order = 1;                    // aperture quadrature order (automatic: the order whose degree covers both below)
+  int source_degree = 0, detector_degree = 0;  // highest rule degree of each cone (0: a point cone)
   double quadrature_error = 0;      // estimated relative error (max over the checked pairs)
   std::size_t checked_pairs = 0;    // pairs used to choose the order and estimate its error
-  std::size_t horizon_crossing = 0; // pairs with a cone within 3 radii of the horizon (error not controlled)
-  // Automatic order: each pair raises its own order up to `order` until two
-  // successive orders agree to the tolerance. mean_order is the average order
-  // used; over the pairs away from the horizon, pairs_at_max_order counts
-  // those that reached `order` without that agreement (their error is the
-  // order's, estimated by quadrature_error) and pair_error is the largest
-  // relative difference of the last two orders of the others (an upper
-  // estimate of their error, below the tolerance).
-  double mean_order = 0;
+  std::size_t horizon_crossing = 0; // pairs with a cone cut by the horizon (integrated over its part above it)
+  // Automatic order: each pair runs the dimension-adaptive combination of
+  // forward_model.h (MeasureAdaptive) up to source_degree and
+  // detector_degree. mean_evaluations is the mean count of BRDF evaluations
+  // per pair; pairs_at_max_order counts the
+  // pairs that reached the top orders without meeting the tolerance, and
+  // pair_error is the largest error estimate of the others (below the
+  // tolerance).
+  double mean_evaluations = 0;
   double pair_error = 0;
   std::size_t pairs_at_max_order = 0;
+  double max_order_error = 0;  // largest error estimate of those pairs
   std::size_t measured = 0, not_measured = 0, saturated = 0;
   double seconds = 0;
 };
@@ -70,13 +72,18 @@ struct SynthResult {
   bool noisy = false;  // the sensor noise model was on (sigma is meaningful)
 };
 
-// Chooses the quadrature order (automatic unless settings fix one): the
-// smallest n whose result differs from order n + 1 by less than the
-// tolerance (relative, max over channels) on up to `max_checked` pairs spread
-// through the plan, pairs with a cone within 3 radii of the horizon excluded. Returns the order and
-// the estimated relative error |I_n - I_{n+1}| / |I_{n+1}|.
+// Chooses the quadrature orders on up to `max_checked` pairs spread through
+// the plan.
+// Automatic order (settings order 0): each checked pair runs MeasureAdaptive
+// up to the degree of the settings' max_order; the result holds the source
+// and detector degrees 99 % of them needed (the caps for the whole plan) and
+// the largest error estimate among those. Fixed order n: the product rule of
+// order n (degree 4 n - 1), with
+// the error estimated as max |I_n - I_(n+1)| / |I_(n+1)| (relative, max over
+// channels).
 struct OrderChoice {
   int order = 1;
+  int source_degree = 0, detector_degree = 0;  // 0: a point cone
   double error = 0;
   std::size_t checked = 0, horizon_crossing = 0;
 };
