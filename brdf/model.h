@@ -236,13 +236,9 @@ class Model {
   const ModelInfo& LobeInfo(std::size_t k) const { return lobes_[k].info; }
   std::size_t LobeOffset(std::size_t k) const { return offsets_[k]; }
 
+  // The run-time model on scalar T (every registered model is compiled for T).
   template <typename T>
-  std::unique_ptr<Bxdf<T>> Make() const {
-    if (lobes_.size() == 1) return MakeLobe<T>(lobes_[0], info_);
-    std::vector<std::unique_ptr<Bxdf<T>>> parts;
-    for (const Lobe& l : lobes_) parts.push_back(MakeLobe<T>(l, l.info));
-    return std::make_unique<detail::SumBxdf<T>>(std::move(parts), offsets_, info_);
-  }
+  std::unique_ptr<Bxdf<T>> Make() const;
 
   static std::string KnownNames() {
     std::string s;
@@ -298,5 +294,21 @@ class Model {
   std::vector<std::size_t> offsets_;
   ModelInfo info_;
 };
+
+template <typename T>
+std::unique_ptr<Bxdf<T>> Model::Make() const {
+  if (lobes_.size() == 1) return MakeLobe<T>(lobes_[0], info_);
+  std::vector<std::unique_ptr<Bxdf<T>>> parts;
+  for (const Lobe& l : lobes_) parts.push_back(MakeLobe<T>(l, l.info));
+  return std::make_unique<detail::SumBxdf<T>>(std::move(parts), offsets_, info_);
+}
+
+// Programs linking brdfkit::validate get Make<double> and Make<float>
+// compiled once, in validate/models.cpp, instead of every registered model
+// again in each of their translation units.
+#ifdef BRDFKIT_PRECOMPILED_MODELS
+extern template std::unique_ptr<Bxdf<double>> Model::Make<double>() const;
+extern template std::unique_ptr<Bxdf<float>> Model::Make<float>() const;
+#endif
 
 }  // namespace brdfkit
