@@ -25,6 +25,14 @@ Eigen::Vector3d Dir(double theta, double phi) {
   return Eigen::Vector3d(std::sin(theta) * std::cos(phi), std::sin(theta) * std::sin(phi), std::cos(theta));
 }
 
+// cos(theta) uniform; one draw per statement (the order of a call's
+// arguments is unspecified), phi first.
+template <class U, class R>
+Eigen::Vector3d RandomDir(U& u, R& rng) {
+  const double phi = 2 * kPi * u(rng);
+  return Dir(std::acos(u(rng)), phi);
+}
+
 // Composite Gauss-Legendre over the pieces between consecutive breaks.
 double Integrate(const GaussLegendre& gl, const std::vector<double>& breaks, const std::function<double(double)>& g) {
   double sum = 0;
@@ -119,7 +127,7 @@ TEST(OrenNayar, SigmaZeroIsLambertExactly) {
   std::mt19937_64 rng(1);
   std::uniform_real_distribution<double> u(0, 1);
   for (int k = 0; k < 2000; ++k) {
-    const Eigen::Vector3d wi = Dir(std::acos(u(rng)), 2 * kPi * u(rng)), wo = Dir(std::acos(u(rng)), 2 * kPi * u(rng));
+    const Eigen::Vector3d wi = RandomDir(u, rng), wo = RandomDir(u, rng);
     const Rgb<double> f = b->Eval(p.data(), wi, wo), fl = bl->Eval(p.data(), wi, wo);
     const Rgb<float> ff = bf->Eval(pf.data(), wi.cast<float>(), wo.cast<float>());
     const Rgb<float> flf = blf->Eval(pf.data(), wi.cast<float>(), wo.cast<float>());
@@ -296,10 +304,10 @@ TEST(Phong, EqualsLafortuneWithMirrorCoefficients) {
     const std::vector<double> pp = Params(phong, "ks=0.1:0.4:0.9,n=" + ns);
     const std::vector<double> pl = Params(laf, "rho=0.1:0.4:0.9,cx=-1,cy=-1,cz=1,n=" + ns);
     for (int k = 0; k < 500; ++k) {
-      const Eigen::Vector3d wo = Dir(std::acos(u(rng)), 2 * kPi * u(rng));
+      const Eigen::Vector3d wo = RandomDir(u, rng);
       // Half the wi near the mirror direction, where the lobe is large.
-      Eigen::Vector3d wi = Dir(std::acos(u(rng)), 2 * kPi * u(rng));
-      if (k % 2) wi = (Reflect(wo) + 0.05 * Dir(std::acos(u(rng)), 2 * kPi * u(rng))).normalized();
+      Eigen::Vector3d wi = RandomDir(u, rng);
+      if (k % 2) wi = (Reflect(wo) + 0.05 * RandomDir(u, rng)).normalized();
       const Rgb<double> fp = bp->Eval(pp.data(), wi, wo), fl = bl->Eval(pl.data(), wi, wo);
       for (int c = 0; c < 3; ++c) EXPECT_NEAR(fp[c], fl[c], 1e-13 * std::max(1.0, fp[c]));
       const double pdf_p = bp->Pdf(pp.data(), wo, wi), pdf_l = bl->Pdf(pl.data(), wo, wi);
@@ -379,7 +387,7 @@ TEST(ClassicModels, ReciprocalOnesAreSymmetricBitForBit) {
     for (int k = 0; k < 300; ++k) {
       std::vector<double> p = m.Info().Defaults();
       if (std::string(spec) == "lafortune") p = Params(m, "cx=0.37,cy=-0.81,cz=0.53,n=7");
-      const Eigen::Vector3d wi = Dir(std::acos(u(rng)), 2 * kPi * u(rng)), wo = Dir(std::acos(u(rng)), 2 * kPi * u(rng));
+      const Eigen::Vector3d wi = RandomDir(u, rng), wo = RandomDir(u, rng);
       ASSERT_TRUE((b->Eval(p.data(), wi, wo) == b->Eval(p.data(), wo, wi)).all()) << spec;
     }
   }

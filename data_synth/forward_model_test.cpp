@@ -45,8 +45,10 @@ TEST(ForwardModel, PointAperturesReproduceTheBrdf) {
   std::mt19937_64 rng(11);
   std::uniform_real_distribution<double> u(0, 1);
   for (int k = 0; k < 500; ++k) {
-    const Eigen::Vector3d wi = DirectionFromAngles(std::acos(u(rng)), 2 * kPi * u(rng));
-    const Eigen::Vector3d wo = DirectionFromAngles(std::acos(u(rng)), 2 * kPi * u(rng));
+    // One draw per statement: the order of a call's arguments is unspecified.
+    const double phi_i = 2 * kPi * u(rng), theta_i = std::acos(u(rng));
+    const double phi_o = 2 * kPi * u(rng), theta_o = std::acos(u(rng));
+    const Eigen::Vector3d wi = DirectionFromAngles(theta_i, phi_i), wo = DirectionFromAngles(theta_o, phi_o);
     const Rgb<double> f = bxdf->Eval(p.data(), wi, wo);
     const Rgb<double> m = MeasuredBrdf(*bxdf, p.data(), wi, wo, q);
     for (int c = 0; c < 3; ++c) EXPECT_NEAR(m[c], f[c], 1e-12 * std::abs(f[c])) << k;
@@ -278,11 +280,13 @@ TEST(ForwardModel, AdaptiveOrderNeedsFewerEvaluationsThanACommonOrder) {
   const double tol = 1e-6;
   for (int k = 0; k < 60; ++k) {
     // Near the mirror direction half of the time, where the lobe matters.
-    const Eigen::Vector3d wi = Dir(75 * u(rng), 360 * u(rng));
+    // One draw per statement: the order of a call's arguments is unspecified.
+    const double ti = 75 * u(rng), pi = 360 * u(rng), u1 = u(rng), u2 = u(rng);
+    const Eigen::Vector3d wi = Dir(ti, pi);
     const Eigen::Vector3d mirror(-wi.x(), -wi.y(), wi.z());
-    const Eigen::Vector3d wo = k % 2 ? Dir(75 * u(rng), 360 * u(rng))
-                                     : Dir(std::acos(mirror.z()) / kDeg + 10 * (u(rng) - 0.5),
-                                           std::atan2(mirror.y(), mirror.x()) / kDeg + 10 * (u(rng) - 0.5));
+    const Eigen::Vector3d wo = k % 2 ? Dir(75 * u1, 360 * u2)
+                                     : Dir(std::acos(mirror.z()) / kDeg + 10 * (u1 - 0.5),
+                                           std::atan2(mirror.y(), mirror.x()) / kDeg + 10 * (u2 - 0.5));
     const Rgb<double> ref = ProductRule(*bxdf, p.data(), inst, 8, wi, wi, wo, wo);
     const AdaptiveMeasurement a = MeasureAdaptive(*bxdf, p.data(), wi, wi, wo, wo, ladder, tol);
     ASSERT_TRUE(a.converged) << k;

@@ -55,7 +55,8 @@ TEST_F(TableIoTest, RoundTripIsBitExact) {
       s.phi_i = u(rng) * 6.2;
       s.theta_o = u(rng) * 1.5;
       s.phi_o = -u(rng) * 3.1;
-      s.f = Eigen::Array3d(u(rng), u(rng) * 1e-7, u(rng) * 1e5);
+      const double f_b = u(rng) * 1e5, f_g = u(rng) * 1e-7, f_r = u(rng);  // one draw at a time
+      s.f = Eigen::Array3d(f_r, f_g, f_b);
       s.sigma = sigma ? Eigen::Array3d(u(rng) + 1e-3, 0.1, 1e-300) : Eigen::Array3d::Zero();
       t.rows.push_back(s);
     }

@@ -42,12 +42,16 @@ std::vector<std::pair<Eigen::Vector3d, Eigen::Vector3d>> Directions(int n, std::
   const double max_theta = 80.0 * kPi / 180.0;
   std::vector<std::pair<Eigen::Vector3d, Eigen::Vector3d>> out;
   while (static_cast<int>(out.size()) < n) {
-    const Eigen::Vector3d wi = Spherical(std::acos(1 - u(rng) * (1 - std::cos(max_theta))), 2 * kPi * u(rng));
+    // One draw per statement: the order of a call's arguments is unspecified.
+    const double phi_i = 2 * kPi * u(rng);
+    const Eigen::Vector3d wi = Spherical(std::acos(1 - u(rng) * (1 - std::cos(max_theta))), phi_i);
     Eigen::Vector3d wo;
     if (out.size() % 2 == 0) {
-      wo = Spherical(std::acos(1 - u(rng) * (1 - std::cos(max_theta))), 2 * kPi * u(rng));
+      const double phi_o = 2 * kPi * u(rng);
+      wo = Spherical(std::acos(1 - u(rng) * (1 - std::cos(max_theta))), phi_o);
     } else {
-      const Eigen::Vector3d h = Spherical(std::abs(g(rng)) * spread, 2 * kPi * u(rng));
+      const double phi_h = 2 * kPi * u(rng);
+      const Eigen::Vector3d h = Spherical(std::abs(g(rng)) * spread, phi_h);
       wo = 2 * wi.dot(h) * h - wi;
       if (wo.z() < std::cos(max_theta)) continue;
     }
