@@ -1,7 +1,8 @@
 # Warning flags for brdfkit's own targets (not for consumers).
 add_library(brdfkit_warnings INTERFACE)
 target_compile_options(brdfkit_warnings INTERFACE
-  -Wall -Wextra -Wpedantic -Wshadow=local -Wnon-virtual-dtor
+  -Wall -Wextra -Wpedantic -Wnon-virtual-dtor
+  $<$<CXX_COMPILER_ID:GNU>:-Wshadow=local>
   # GCC 12 reports false -Wrestrict overlaps inside std::string's operator+
   # at -O2 (GCC bug 105329).
   $<$<CXX_COMPILER_ID:GNU>:-Wno-restrict>

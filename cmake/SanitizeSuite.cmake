@@ -1,14 +1,17 @@
 # ctest stage: the whole test suite built with AddressSanitizer and
-# UndefinedBehaviorSanitizer (BRDFKIT_SANITIZE) in its own tree, then run.
-# -DSOURCE_DIR=<repo> -DBINARY_DIR=<tree> [-DJOBS=2]
+# UndefinedBehaviorSanitizer (BRDFKIT_SANITIZE) by clang in its own tree,
+# then run. -DSOURCE_DIR=<repo> -DBINARY_DIR=<tree> -DCXX=<clang++> [-DJOBS=2]
 if(NOT JOBS)
   set(JOBS 2)
 endif()
-# -O1: ASan and UBSan instrumentation makes -O3 compiles of the templated
-# models several times slower; -O1 is the optimisation ASan recommends.
+if(NOT CXX)
+  message(FATAL_ERROR "sanitizers: clang++ not found (Debian: apt-get install clang libclang-rt-14-dev; .ci/setup does it)")
+endif()
+# -O1, the optimisation ASan recommends. Warnings are reported, not fatal:
+# the warning set is GCC's.
 execute_process(COMMAND ${CMAKE_COMMAND} -S ${SOURCE_DIR} -B ${BINARY_DIR} -DCMAKE_BUILD_TYPE=Release
-                        "-DCMAKE_CXX_FLAGS_RELEASE=-O1 -DNDEBUG"
-                        -DBRDFKIT_SANITIZE=ON -DBRDFKIT_BUILD_BENCH=OFF -DBRDFKIT_INSTALL=OFF
+                        -DCMAKE_CXX_COMPILER=${CXX} "-DCMAKE_CXX_FLAGS_RELEASE=-O1 -DNDEBUG"
+                        -DBRDFKIT_SANITIZE=ON -DBRDFKIT_WERROR=OFF -DBRDFKIT_BUILD_BENCH=OFF -DBRDFKIT_INSTALL=OFF
                         -DBRDFKIT_ROBUSTNESS_TESTS=OFF
                 RESULT_VARIABLE rc)
 if(NOT rc EQUAL 0)
