@@ -247,6 +247,14 @@ class Bxdf {
   virtual const ModelInfo& Info() const = 0;
   // f_r(wi, wo) in 1/sr per channel, without the cosine.
   virtual Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const = 0;
+  // sum_k w[k] f_r(wi, wo[k]) over n outgoing directions in one call (the
+  // aperture quadrature's inner sum; adapters override it with the model's
+  // Eval inlined in the loop).
+  virtual Rgb<T> EvalSum(const T* p, const Vec3<T>& wi, const Vec3<T>* wo, const double* w, std::size_t n) const {
+    Rgb<T> sum = Rgb<T>::Constant(T(0));
+    for (std::size_t k = 0; k < n; ++k) sum += Eval(p, wi, wo[k]) * T(w[k]);
+    return sum;
+  }
   // Importance sample wi given wo; pdf with respect to solid angle.
   virtual BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const = 0;
   // Density of Sample, with respect to solid angle.

@@ -58,6 +58,11 @@ class ModelAdapter final : public Bxdf<T> {
   Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const override {
     return m_->template Eval<T>(p, wi, wo);
   }
+  Rgb<T> EvalSum(const T* p, const Vec3<T>& wi, const Vec3<T>* wo, const double* w, std::size_t n) const override {
+    Rgb<T> sum = Rgb<T>::Constant(T(0));
+    for (std::size_t k = 0; k < n; ++k) sum += m_->template Eval<T>(p, wi, wo[k]) * T(w[k]);
+    return sum;
+  }
   BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const override {
     return m_->template Sample<T>(p, wo, u1, u2);
   }
@@ -90,6 +95,11 @@ class SumBxdf final : public Bxdf<T> {
   Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const override {
     Rgb<T> f = Rgb<T>::Constant(T(0));
     for (std::size_t k = 0; k < lobes_.size(); ++k) f += lobes_[k]->Eval(p + offsets_[k], wi, wo);
+    return f;
+  }
+  Rgb<T> EvalSum(const T* p, const Vec3<T>& wi, const Vec3<T>* wo, const double* w, std::size_t n) const override {
+    Rgb<T> f = Rgb<T>::Constant(T(0));
+    for (std::size_t k = 0; k < lobes_.size(); ++k) f += lobes_[k]->EvalSum(p + offsets_[k], wi, wo, w, n);
     return f;
   }
   BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const override {

@@ -7,7 +7,7 @@
 #    seed corpus (FuzzBuild.cmake, FuzzRun.cmake).
 # The sanitizer tree itself has them off (BRDFKIT_ROBUSTNESS_TESTS=OFF).
 option(BRDFKIT_ROBUSTNESS_TESTS "Add the sanitizer suite and the fuzzers to ctest" ${BRDFKIT_TOP_LEVEL})
-set(BRDFKIT_FUZZ_SECONDS 30 CACHE STRING "Seconds each fuzz target runs under ctest")
+set(BRDFKIT_FUZZ_SECONDS 20 CACHE STRING "Seconds each fuzz target runs under ctest")
 
 # The sanitizer tree is built with clang: its ASan + UBSan compiles of this
 # code take about the CPU time of GCC's -O3 ones, where GCC's take 3x

@@ -215,7 +215,7 @@ AdaptiveMeasurement MeasureAdaptive(const Bxdf<double>& bxdf, const double* para
     const bool up_d = raise_d && ed > goal;
     if (!up_s && !up_d) break;  // the steps that remain too large are at the ladder's top
     // A cone whose steps shrink too slowly to reach the goal within its
-    // ladder, even with two levels to spare, stops the pair here: climbing
+    // ladder stops the pair here: climbing
     // to the top would cost the most evaluations and still miss the
     // tolerance (a lobe narrower than the cone). Predicted from the ratio
     // of its last two steps (geometric convergence).
@@ -223,7 +223,7 @@ AdaptiveMeasurement MeasureAdaptive(const Bxdf<double>& bxdf, const double* para
       if (!(previous > 0) || level < 4) return false;  // no rate yet, or still pre-asymptotic
       const double ratio = step / previous;
       if (!(ratio < 1)) return level >= 6;  // not shrinking: a lobe narrower than this rule resolves
-      return level + std::log(goal / step) / std::log(ratio) > top + 2;
+      return level + std::log(goal / step) / std::log(ratio) > top;
     };
     if ((up_s && hopeless(es, es_previous, a, ns)) || (up_d && hopeless(ed, ed_previous, b, nd))) break;
     if (up_s) es_previous = es;

@@ -33,6 +33,7 @@
 #include <Eigen/Core>
 
 #include <cmath>
+#include <type_traits>
 #include <vector>
 
 #include "brdf/core.h"
@@ -130,8 +131,12 @@ ApertureIntegral<T> IntegrateApertures(const Bxdf<T>& bxdf, const T* params, con
   for (std::size_t s = 0; s < source.directions.size(); ++s) {
     const Vec3<T> wi = source.directions[s].template cast<T>();
     Rgb<T> inner = Rgb<T>::Constant(T(0));
-    for (std::size_t d = 0; d < detector.directions.size(); ++d)
-      inner += bxdf.Eval(params, wi, detector.directions[d].template cast<T>()) * T(detector.weights[d]);
+    if constexpr (std::is_same_v<T, double>) {
+      inner = bxdf.EvalSum(params, wi, detector.directions.data(), detector.weights.data(), detector.directions.size());
+    } else {
+      for (std::size_t d = 0; d < detector.directions.size(); ++d)
+        inner += bxdf.Eval(params, wi, detector.directions[d].template cast<T>()) * T(detector.weights[d]);
+    }
     out.weighted += inner * T(source.weights[s]);
   }
   return out;
@@ -162,8 +167,8 @@ Rgb<T> MeasuredBrdf(const Bxdf<T>& bxdf, const T* params, const Eigen::Vector3d&
 // errors removed) with e_s + e_d as its error estimate; otherwise the level
 // of each cone whose step exceeds half the tolerance is raised, up to the
 // ladder's top. A pair stops early, unconverged, when the ratio of a cone's
-// last two steps predicts that it would not reach the tolerance even two
-// levels past the top (a lobe narrower than the cone). A small
+// last two steps predicts that it would not reach the tolerance within the
+// ladder (a lobe narrower than the cone). A small
 // source (or a collimated one, a single node) thereby stays low while the
 // detector rises: a typical pair costs I(1,1) + I(2,1) + I(1,2) + I(2,2) +
 // I(1,3) = 16 + 48 + 48 + 144 + 64 BRDF evaluations, where raising one common

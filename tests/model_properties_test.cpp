@@ -125,6 +125,33 @@ TEST_P(ModelProperties, BelowHorizonIsZero) {
   EXPECT_TRUE((b->Eval(p.data(), horizon, up.normalized()) == 0).all());
 }
 
+// The aperture quadrature's batched inner sum is the weighted sum of Eval,
+// for the model alone and inside a sum of lobes.
+TEST_P(ModelProperties, EvalSumIsTheWeightedSumOfEval) {
+  std::mt19937_64 rng(5);
+  const std::vector<double> p = info_.Defaults();
+  std::vector<Eigen::Vector3d> wo;
+  std::vector<double> w;
+  for (int k = 0; k < 16; ++k) {
+    wo.push_back(test::RandomUpperDirection(rng));
+    w.push_back(0.1 + k);
+  }
+  const Settings settings = SettingsFor(info_);
+  const Model sum = Model::Parse("lambert+" + GetParam() + (settings.empty() ? "" : ":" + settings.begin()->second));
+  std::vector<double> ps = {0.2, 0.3, 0.4};
+  ps.insert(ps.end(), p.begin(), p.end());
+  for (const auto& [m, params] : {std::pair<const Model*, const std::vector<double>*>{model_.get(), &p}, {&sum, &ps}}) {
+    const auto b = m->Make<double>();
+    for (int k = 0; k < 8; ++k) {
+      const Eigen::Vector3d wi = test::RandomUpperDirection(rng);
+      Rgb<double> expected = Rgb<double>::Zero();
+      for (std::size_t j = 0; j < wo.size(); ++j) expected += b->Eval(params->data(), wi, wo[j]) * w[j];
+      const Rgb<double> got = b->EvalSum(params->data(), wi, wo.data(), w.data(), wo.size());
+      for (int c = 0; c < 3; ++c) EXPECT_NEAR(got[c], expected[c], 1e-12 * std::abs(expected[c])) << m->Spec();
+    }
+  }
+}
+
 TEST_P(ModelProperties, ReciprocalWhereClaimed) {
   std::mt19937_64 rng(5);
   const auto b = model_->Make<double>();
