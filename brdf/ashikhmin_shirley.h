@@ -151,16 +151,9 @@ struct AshikhminShirley {
       const double c = std::exp(log_c);
       const double sin_t = std::sqrt(std::max(0.0, -std::expm1(log_c) * (1.0 + c)));
       const Eigen::Vector3d h(sin_t * cp, sin_t * sp, c);
-      const Eigen::Vector3d vo(Value(wo.x()), Value(wo.y()), Value(wo.z()));
-      const double d = vo.dot(h);
-      if (d <= 0) return s;  // half vector seen from behind: no reflection
-      wi = 2.0 * d * h - vo;
+      if (!ReflectAbout(wo, h, wi)) return s;  // half vector seen from behind: no reflection
     }
-    if (wi.z() <= 0) return s;  // reflected below the horizon
-    s.wi = Vec3<T>(T(wi.x()), T(wi.y()), T(wi.z()));
-    s.pdf = Pdf(p, wo, s.wi);
-    s.valid = s.pdf > T(0);
-    return s;
+    return SampledFrom(*this, p, wo, wi);
   }
 
   double SampleWeight(const double* p) const {

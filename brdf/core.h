@@ -264,6 +264,30 @@ class Bxdf {
   virtual const MicrofacetView<T>* Microfacet() const { return nullptr; }
 };
 
+// Sampling by reflection about a sampled unit normal m (a microfacet normal
+// or a half vector, in double): wi = 2 (wo.m) m - wo. Returns false when m
+// faces away from wo (nothing reflects off it towards wo).
+template <typename T>
+bool ReflectAbout(const Vec3<T>& wo, const Eigen::Vector3d& m, Eigen::Vector3d& wi) {
+  const Eigen::Vector3d v(Value(wo.x()), Value(wo.y()), Value(wo.z()));
+  const double d = v.dot(m);
+  if (d <= 0) return false;
+  wi = 2.0 * d * m - v;
+  return true;
+}
+
+// A sampled direction wi as a BsdfSample with the model's own pdf: invalid
+// when wi is at or below the horizon or its pdf is zero.
+template <typename T, typename M>
+BsdfSample<T> SampledFrom(const M& model, const T* p, const Vec3<T>& wo, const Eigen::Vector3d& wi) {
+  BsdfSample<T> s;
+  if (wi.z() <= 0) return s;  // reflected below the horizon
+  s.wi = Vec3<T>(T(wi.x()), T(wi.y()), T(wi.z()));
+  s.pdf = model.Pdf(p, wo, s.wi);
+  s.valid = s.pdf > T(0);
+  return s;
+}
+
 // Cosine-weighted importance sampling (pdf = cos theta_i / pi), shared by the
 // models whose lobe is diffuse or tabulated.
 struct CosineSampling {

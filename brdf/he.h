@@ -368,16 +368,9 @@ class He {
       const double tan_t = alpha * std::sqrt(-std::log1p(-v));
       const double cos_t = 1.0 / std::sqrt(1.0 + tan_t * tan_t), sin_t = tan_t * cos_t;
       const Eigen::Vector3d m(sin_t * std::cos(2 * kPi * u2), sin_t * std::sin(2 * kPi * u2), cos_t);
-      const Eigen::Vector3d vo(Value(wo.x()), Value(wo.y()), Value(wo.z()));
-      const double vm = vo.dot(m);
-      if (vm <= 0) return s;  // normal seen from behind: no reflection
-      wi = 2.0 * vm * m - vo;
+      if (!ReflectAbout(wo, m, wi)) return s;  // normal seen from behind: no reflection
     }
-    if (wi.z() <= 0) return s;  // reflected below the horizon
-    s.wi = Vec3<T>(T(wi.x()), T(wi.y()), T(wi.z()));
-    s.pdf = Pdf(p, wo, s.wi);
-    s.valid = s.pdf > T(0);
-    return s;
+    return SampledFrom(*this, p, wo, wi);
   }
 
   double SampleWeight(const double* p) const {

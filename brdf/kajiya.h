@@ -148,14 +148,9 @@ class Kajiya {
     const double c = std::cos(Value(p[2])), sn = std::sin(Value(p[2]));
     const double zx = c * zu - sn * zv, zy = sn * zu + c * zv;
     const Eigen::Vector3d m = Eigen::Vector3d(-zx, -zy, 1.0).normalized();
-    const Eigen::Vector3d v(Value(wo.x()), Value(wo.y()), Value(wo.z()));
-    const double vm = v.dot(m);
-    const Eigen::Vector3d wi = 2.0 * vm * m - v;
-    if (vm <= 0 || wi.z() <= 0) return s;  // facet seen from behind, or reflected below the horizon
-    s.wi = Vec3<T>(T(wi.x()), T(wi.y()), T(wi.z()));
-    s.pdf = Pdf(p, wo, s.wi);
-    s.valid = s.pdf > T(0);
-    return s;
+    Eigen::Vector3d wi;
+    if (!ReflectAbout(wo, m, wi)) return s;  // facet seen from behind
+    return SampledFrom(*this, p, wo, wi);
   }
 
   double SampleWeight(const double* p) const {

@@ -263,10 +263,10 @@ class MicrofacetModel {
       ax = Value(tx);
       ay = Value(ty);
     }
-    const Eigen::Vector3d v(Value(wo.x()), Value(wo.y()), Value(wo.z()));
     Eigen::Vector3d wm;
     if constexpr (Config::kDist == MicrofacetDistribution::kGgx) {
       // Heitz 2018, listing 1: stretch, sample the projected hemisphere, unstretch.
+      const Eigen::Vector3d v(Value(wo.x()), Value(wo.y()), Value(wo.z()));
       const Eigen::Vector3d vh = Eigen::Vector3d(ax * v.x(), ay * v.y(), v.z()).normalized();
       const double lensq = vh.x() * vh.x() + vh.y() * vh.y();
       const Eigen::Vector3d t1 =
@@ -285,12 +285,9 @@ class MicrofacetModel {
       const double phi = 2.0 * kPi * u2;
       wm = Eigen::Vector3d(-ax * r * std::cos(phi), -ay * r * std::sin(phi), 1.0).normalized();
     }
-    const Eigen::Vector3d wi = 2.0 * v.dot(wm) * wm - v;
-    if (wi.z() <= 0 || v.dot(wm) <= 0) return s;
-    s.wi = Vec3<T>(T(wi.x()), T(wi.y()), T(wi.z()));
-    s.pdf = Pdf(p, wo, s.wi);
-    s.valid = s.pdf > T(0);
-    return s;
+    Eigen::Vector3d wi;
+    if (!ReflectAbout(wo, wm, wi)) return s;  // facet seen from behind
+    return SampledFrom(*this, p, wo, wi);
   }
 
   double SampleWeight(const double* p) const {

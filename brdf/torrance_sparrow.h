@@ -264,14 +264,9 @@ class VGrooveModel {
     }
     const double phi = 2.0 * kPi * u2;
     const Eigen::Vector3d wm(sin_t * std::cos(phi), sin_t * std::sin(phi), cos_t);
-    const Eigen::Vector3d v(Value(wo.x()), Value(wo.y()), Value(wo.z()));
-    const double v_m = v.dot(wm);
-    const Eigen::Vector3d wi = 2.0 * v_m * wm - v;
-    if (v_m <= 0 || wi.z() <= 0) return s;  // facet seen from behind, or reflected below the horizon
-    s.wi = Vec3<T>(T(wi.x()), T(wi.y()), T(wi.z()));
-    s.pdf = Pdf(p, wo, s.wi);
-    s.valid = s.pdf > T(0);
-    return s;
+    Eigen::Vector3d wi;
+    if (!ReflectAbout(wo, wm, wi)) return s;  // facet seen from behind
+    return SampledFrom(*this, p, wo, wi);
   }
 
   double SampleWeight(const double* p) const {

@@ -148,16 +148,9 @@ class WardModel {
       const double k = cp * cp / (ax * ax) + sp * sp / (ay * ay);
       const double tan_t = std::sqrt(-std::log1p(-v) / k);
       const Eigen::Vector3d h = Eigen::Vector3d(tan_t * cp, tan_t * sp, 1.0).normalized();
-      const Eigen::Vector3d vo(Value(wo.x()), Value(wo.y()), Value(wo.z()));
-      const double d = vo.dot(h);
-      if (d <= 0) return s;  // half vector seen from behind: no reflection
-      wi = 2.0 * d * h - vo;
+      if (!ReflectAbout(wo, h, wi)) return s;  // half vector seen from behind: no reflection
     }
-    if (wi.z() <= 0) return s;  // reflected below the horizon
-    s.wi = Vec3<T>(T(wi.x()), T(wi.y()), T(wi.z()));
-    s.pdf = Pdf(p, wo, s.wi);
-    s.valid = s.pdf > T(0);
-    return s;
+    return SampledFrom(*this, p, wo, wi);
   }
 
   double SampleWeight(const double* p) const { return MeanRgb(p) + MeanRgb(p + 3); }
