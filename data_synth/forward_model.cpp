@@ -147,7 +147,7 @@ AdaptiveMeasurement MeasureAdaptive(const Bxdf<double>& bxdf, const double* para
   std::vector<PlacedCone> src(ns), det(nd);
   std::vector<char> src_placed(ns, 0), det_placed(nd, 0);
   const int stride = nd + 1;
-  std::vector<Rgb<double>> value((ns + 2) * stride, Rgb<double>::Zero());
+  std::vector<Rgb<double>> value((ns + 1) * stride, Rgb<double>::Zero());
   std::vector<char> have(value.size(), 0);
   AdaptiveMeasurement out;
 
@@ -183,7 +183,6 @@ AdaptiveMeasurement MeasureAdaptive(const Bxdf<double>& bxdf, const double* para
 
   // a, b: levels of the source and detector rules (degree 2 level + 1).
   int a = 1, b = 1;
-  int top_s = 1, top_d = 1;  // highest levels used
   // Steps of each cone. A cone at the ladder's top keeps its last step (the
   // error of the level below, an over-estimate for its own); a finite cone
   // with a one-rule ladder has no step at all, so it is never converged.
@@ -200,8 +199,6 @@ AdaptiveMeasurement MeasureAdaptive(const Bxdf<double>& bxdf, const double* para
     out.f = p;
     if (raise_s) out.f += ds;
     if (raise_d) out.f += dd;
-    top_s = std::max(top_s, raise_s ? a + 1 : a);
-    top_d = std::max(top_d, raise_d ? b + 1 : b);
     const double scale = out.f.abs().maxCoeff();
     const double es = ds.abs().maxCoeff(), ed = dd.abs().maxCoeff();
     out.error = scale > 0 ? (es + ed) / scale : (es + ed > 0 ? 1.0 : 0.0);
@@ -215,10 +212,10 @@ AdaptiveMeasurement MeasureAdaptive(const Bxdf<double>& bxdf, const double* para
     const bool up_d = raise_d && ed > goal;
     if (!up_s && !up_d) break;  // the steps that remain too large are at the ladder's top
     // A cone whose steps shrink too slowly to reach the goal within its
-    // ladder stops the pair here: climbing
-    // to the top would cost the most evaluations and still miss the
-    // tolerance (a lobe narrower than the cone). Predicted from the ratio
-    // of its last two steps (geometric convergence).
+    // ladder stops the pair here: climbing to the top would cost the most
+    // evaluations and still miss the tolerance (a lobe narrower than the
+    // cone). Predicted from the ratio of its last two steps (geometric
+    // convergence).
     const auto hopeless = [&](double step, double previous, int level, int top) {
       if (!(previous > 0) || level < 4) return false;  // no rate yet, or still pre-asymptotic
       const double ratio = step / previous;
@@ -231,6 +228,8 @@ AdaptiveMeasurement MeasureAdaptive(const Bxdf<double>& bxdf, const double* para
     a += up_s;
     b += up_d;
   }
+  // Highest levels used: the levels only rise, and each step also reads the next one.
+  const int top_s = std::min(a + 1, ns), top_d = std::min(b + 1, nd);
   out.norm = source_cone(top_s).nominal_projected * detector_cone(top_d).nominal_projected;
   out.source_degree = ladder.source.front().IsPoint() ? 0 : ladder.source[top_s - 1].degree;
   out.detector_degree = ladder.detector.front().IsPoint() ? 0 : ladder.detector[top_d - 1].degree;

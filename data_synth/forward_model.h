@@ -128,15 +128,19 @@ ApertureIntegral<T> IntegrateApertures(const Bxdf<T>& bxdf, const T* params, con
   ApertureIntegral<T> out;
   out.source_projected = source.nominal_projected;
   out.detector_projected = detector.nominal_projected;
+  // Detector directions as T once per call (as they are for double).
+  std::vector<Vec3<T>> cast;
+  const Vec3<T>* wo;
+  if constexpr (std::is_same_v<T, double>) {
+    wo = detector.directions.data();
+  } else {
+    cast.reserve(detector.directions.size());
+    for (const Eigen::Vector3d& d : detector.directions) cast.push_back(d.template cast<T>());
+    wo = cast.data();
+  }
   for (std::size_t s = 0; s < source.directions.size(); ++s) {
     const Vec3<T> wi = source.directions[s].template cast<T>();
-    Rgb<T> inner = Rgb<T>::Constant(T(0));
-    if constexpr (std::is_same_v<T, double>) {
-      inner = bxdf.EvalSum(params, wi, detector.directions.data(), detector.weights.data(), detector.directions.size());
-    } else {
-      for (std::size_t d = 0; d < detector.directions.size(); ++d)
-        inner += bxdf.Eval(params, wi, detector.directions[d].template cast<T>()) * T(detector.weights[d]);
-    }
+    const Rgb<T> inner = bxdf.EvalSum(params, wi, wo, detector.weights.data(), detector.directions.size());
     out.weighted += inner * T(source.weights[s]);
   }
   return out;
@@ -168,9 +172,9 @@ Rgb<T> MeasuredBrdf(const Bxdf<T>& bxdf, const T* params, const Eigen::Vector3d&
 // of each cone whose step exceeds half the tolerance is raised, up to the
 // ladder's top. A pair stops early, unconverged, when the ratio of a cone's
 // last two steps predicts that it would not reach the tolerance within the
-// ladder (a lobe narrower than the cone). A small
-// source (or a collimated one, a single node) thereby stays low while the
-// detector rises: a typical pair costs I(1,1) + I(2,1) + I(1,2) + I(2,2) +
+// ladder (a lobe narrower than the cone). A small source (or a collimated
+// one, a single node) thereby stays low while the detector rises: a typical
+// pair costs I(1,1) + I(2,1) + I(1,2) + I(2,2) +
 // I(1,3) = 16 + 48 + 48 + 144 + 64 BRDF evaluations, where raising one common
 // order until two successive orders agree costs 16 + 256 + 1,296.
 struct ApertureLadder {

@@ -50,13 +50,12 @@ struct SynthReport {
   double quadrature_error = 0;      // estimated relative error (max over the checked pairs)
   std::size_t checked_pairs = 0;    // pairs used to choose the order and estimate its error
   std::size_t horizon_crossing = 0; // pairs with a cone cut by the horizon (integrated over its part above it)
-  // Automatic order: each pair runs the dimension-adaptive combination of
-  // forward_model.h (MeasureAdaptive) up to source_degree and
+  // Automatic order: each pair raises its source and detector rules
+  // separately (MeasureAdaptive in forward_model.h) up to source_degree and
   // detector_degree. mean_evaluations is the mean count of BRDF evaluations
-  // per pair; pairs_at_max_order counts the
-  // pairs that reached the top orders without meeting the tolerance, and
-  // pair_error is the largest error estimate of the others (below the
-  // tolerance).
+  // per pair; pairs_at_max_order counts the pairs that stopped without
+  // meeting the tolerance, and pair_error is the largest error estimate of
+  // the others (below the tolerance).
   double mean_evaluations = 0;
   double pair_error = 0;
   std::size_t pairs_at_max_order = 0;
@@ -78,9 +77,8 @@ struct SynthResult {
 // up to the degree of the settings' max_order; the result holds the source
 // and detector degrees 99 % of them needed (the caps for the whole plan) and
 // the largest error estimate among those. Fixed order n: the product rule of
-// order n (degree 4 n - 1), with
-// the error estimated as max |I_n - I_(n+1)| / |I_(n+1)| (relative, max over
-// channels).
+// order n (degree 4 n - 1), with the error estimated as
+// max |I_n - I_(n+1)| / |I_(n+1)| (relative, max over channels).
 struct OrderChoice {
   int order = 1;
   int source_degree = 0, detector_degree = 0;  // 0: a point cone
