@@ -16,6 +16,8 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <cstddef>
 #include <limits>
@@ -261,6 +263,10 @@ class Bxdf {
   virtual T Pdf(const T* p, const Vec3<T>& wo, const Vec3<T>& wi) const = 0;
   // Relative weight for choosing this lobe in a sum (about its albedo).
   virtual double SampleWeight(const double* p) const = 0;
+  // Whether Sample and Pdf are the model's own (a model may leave them out:
+  // then Sample returns invalid samples, Pdf 0, and the checks that need
+  // them are skipped with a note).
+  virtual bool CanSample() const { return true; }
   virtual const MicrofacetView<T>* Microfacet() const { return nullptr; }
 };
 
@@ -307,6 +313,54 @@ struct CosineSampling {
     return wi.z() * T(kInvPi);
   }
 };
+
+// "; did you mean X?" (or "X or Y") naming the known names nearest to an
+// unknown one: within an edit distance of max(2, |name| / 3) (optimal string
+// alignment: insertions, deletions, substitutions, transpositions), or whose
+// description holds the unknown name as a word (roughness -> alpha, whose
+// meaning reads "roughness ..."). Empty when nothing is near.
+struct KnownName {
+  std::string name;
+  std::string meaning;  // free text searched for the unknown name as a word
+};
+inline std::string DidYouMean(const std::string& unknown, const std::vector<KnownName>& known) {
+  const auto lower = [](std::string s) {
+    for (char& c : s) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    return s;
+  };
+  const std::string u = lower(unknown);
+  const auto distance = [](const std::string& a, const std::string& b) {
+    std::vector<std::vector<std::size_t>> d(a.size() + 1, std::vector<std::size_t>(b.size() + 1));
+    for (std::size_t i = 0; i <= a.size(); ++i) d[i][0] = i;
+    for (std::size_t j = 0; j <= b.size(); ++j) d[0][j] = j;
+    for (std::size_t i = 1; i <= a.size(); ++i)
+      for (std::size_t j = 1; j <= b.size(); ++j) {
+        d[i][j] = std::min({d[i - 1][j] + 1, d[i][j - 1] + 1, d[i - 1][j - 1] + (a[i - 1] == b[j - 1] ? 0 : 1)});
+        if (i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1]) d[i][j] = std::min(d[i][j], d[i - 2][j - 2] + 1);
+      }
+    return d[a.size()][b.size()];
+  };
+  const std::size_t limit = std::max<std::size_t>(2, u.size() / 3);
+  std::size_t best = limit + 1;
+  std::vector<std::string> near;
+  for (const KnownName& k : known) {
+    std::size_t dist = distance(u, lower(k.name));
+    // The unknown name as a whole word of the description counts as distance 1.
+    const std::string m = " " + lower(k.meaning) + " ";
+    for (std::size_t pos = m.find(u); dist > 1 && u.size() >= 3 && pos != std::string::npos; pos = m.find(u, pos + 1))
+      if (!std::isalnum(static_cast<unsigned char>(m[pos - 1])) && !std::isalnum(static_cast<unsigned char>(m[pos + u.size()])))
+        dist = 1;
+    if (dist > limit || dist > best) continue;
+    if (dist < best) near.clear();
+    best = dist;
+    if (std::find(near.begin(), near.end(), k.name) == near.end()) near.push_back(k.name);
+  }
+  if (near.empty() || u.empty()) return "";
+  std::string out = "; did you mean ";
+  for (std::size_t i = 0; i < near.size() && i < 3; ++i)
+    out += (i ? (i + 1 == std::min<std::size_t>(near.size(), 3) ? " or " : ", ") : "") + near[i];
+  return out + "?";
+}
 
 // Luminance-like mean of a colour parameter, for lobe selection weights.
 inline double MeanRgb(const double* c) { return (c[0] + c[1] + c[2]) / 3.0; }

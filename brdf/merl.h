@@ -124,12 +124,16 @@ class MerlTable {
     double dx, dy, dz;
     Frame(wi, wo, h, theta_h, dx, dy, dz);
     theta_d = std::atan2(std::sqrt(dx * dx + dy * dy), dz);
+    // -0 + 0 = +0: a zero component carries no direction, and its sign (from
+    // the azimuth of a direction on the normal, where azimuth is undefined)
+    // must not pick phi_d = pi over phi_d = 0.
+    dx += 0.0;
+    dy += 0.0;
     if (dy < 0 || (dy == 0 && dx < 0)) {
       dx = -dx;
       dy = -dy;
     }
-    // + 0.0 turns atan2(-0, x) = -0 into +0.
-    phi_d = std::atan2(dy, dx) + 0.0;
+    phi_d = std::atan2(dy, dx);
   }
 
   // With phi_h = 0.

@@ -292,6 +292,44 @@ TEST_F(MerlFile, RoundTripOfAnalyticModel) {
     }
 }
 
+// On the normal the azimuth is undefined: a direction there (any phi, either
+// sign of its zero components) must look up the same value. The table varies
+// with the phi_d bin in every theta_d row, so a lookup that lets the azimuth
+// or a signed zero pick phi_d = pi instead of 0 reads a different value.
+TEST(MerlLookup, PoleIsIndependentOfAzimuthAndSignedZeros) {
+  Table t;
+  for (int i = 0; i < Table::kThetaH; ++i)
+    for (int j = 0; j < Table::kThetaD; ++j)
+      for (int k = 0; k < Table::kPhiD; ++k)
+        for (int c = 0; c < 3; ++c) t.values[c * Table::kCells + Table::Index(i, j, k)] = 1 + k + 0.01 * j + c;
+  std::vector<Eigen::Vector3d> poles;
+  for (double phi : {0.0, kPi / 2, kPi, -kPi, 1.5 * kPi, 2 * kPi, -0.3, 2.9})
+    poles.emplace_back(std::sin(0.0) * std::cos(phi), std::sin(0.0) * std::sin(phi), std::cos(0.0));
+  for (double sx : {0.0, -0.0})
+    for (double sy : {0.0, -0.0}) poles.emplace_back(sx, sy, 1.0);
+  const Eigen::Vector3d n = Eigen::Vector3d::UnitZ();
+  std::vector<Eigen::Vector3d> others = poles;
+  for (double theta : {0.3, 1.1, 1.5})
+    for (double phi : {0.0, 2.0, -2.5}) others.emplace_back(std::sin(theta) * std::cos(phi), std::sin(theta) * std::sin(phi), std::cos(theta));
+  for (bool trilinear : {false, true})
+    for (const Eigen::Vector3d& wo : others) {
+      // The reference: the normal with positive zeros, against wo with its own signs normalised.
+      const Eigen::Vector3d wo_ref = wo.z() == 1 ? n : wo;
+      const Rgb<double> ref = t.Lookup(n, wo_ref, trilinear);
+      for (const Eigen::Vector3d& wi : poles) {
+        const Rgb<double> a = t.Lookup(wi, wo, trilinear), b = t.Lookup(wo, wi, trilinear);
+        for (int c = 0; c < 3; ++c) {
+          EXPECT_EQ(a[c], ref[c]) << "wi (" << wi.transpose() << ") wo (" << wo.transpose() << ") trilinear " << trilinear;
+          EXPECT_EQ(b[c], ref[c]) << "swapped, wi (" << wi.transpose() << ") wo (" << wo.transpose() << ")";
+        }
+      }
+    }
+  // wi = wo = n: theta_h = theta_d = 0 and the phi_d = 0 cell, value 1 + c.
+  const Rgb<double> at_pole = t.Lookup(Eigen::Vector3d(-0.0, -0.0, 1), n, false);
+  EXPECT_EQ(at_pole[0], 1.0);
+  EXPECT_EQ(at_pole[2], 3.0);
+}
+
 // g(th, td, pd) = 0.5 + 0.3 cos th + 0.2 cos td + 0.2 s^2 with
 // s = sin th sin td cos pd = (wo.z - wi.z) / 2: smooth, reciprocal, isotropic.
 // In index units (x: theta_h = (x/90)^2 pi/2, y: theta_d = y pi/180,

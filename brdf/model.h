@@ -6,9 +6,10 @@
 //   static ModelInfo Info();
 //   explicit M(const Settings&);
 //   template <class T> Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const;
+// and optionally
 //   template <class T> BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const;
 //   template <class T> T Pdf(const T* p, const Vec3<T>& wo, const Vec3<T>& wi) const;
-// and optionally
+//     (both or neither; without them the sampling checks are skipped)
 //   double SampleWeight(const double* p) const;                  // lobe choice in sums
 //   template <class T> T D(const T* p, const Vec3<T>& wm) const;  // microfacet models
 //   template <class T> T G1(const T* p, const Vec3<T>& w, const Vec3<T>& wm) const;  // Smith
@@ -63,12 +64,19 @@ class ModelAdapter final : public Bxdf<T> {
     for (std::size_t k = 0; k < n; ++k) sum += m_->template Eval<T>(p, wi, wo[k]) * T(w[k]);
     return sum;
   }
+  static constexpr bool kSamples = requires(const M& mm, const T* p, const Vec3<T>& w) {
+    mm.template Sample<T>(p, w, 0.5, 0.5);
+    mm.template Pdf<T>(p, w, w);
+  };
   BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const override {
-    return m_->template Sample<T>(p, wo, u1, u2);
+    if constexpr (kSamples) return m_->template Sample<T>(p, wo, u1, u2);
+    else return BsdfSample<T>{};
   }
   T Pdf(const T* p, const Vec3<T>& wo, const Vec3<T>& wi) const override {
-    return m_->template Pdf<T>(p, wo, wi);
+    if constexpr (kSamples) return m_->template Pdf<T>(p, wo, wi);
+    else return T(0);
   }
+  bool CanSample() const override { return kSamples; }
   double SampleWeight(const double* p) const override {
     if constexpr (requires(const M& mm) { mm.SampleWeight(p); }) {
       return m_->SampleWeight(p);
@@ -129,6 +137,9 @@ class SumBxdf final : public Bxdf<T> {
     double s = 0;
     for (std::size_t k = 0; k < lobes_.size(); ++k) s += lobes_[k]->SampleWeight(p + offsets_[k]);
     return s;
+  }
+  bool CanSample() const override {
+    return std::all_of(lobes_.begin(), lobes_.end(), [](const auto& l) { return l->CanSample(); });
   }
 
  private:
@@ -231,7 +242,7 @@ class Model {
       });
       if (!found)
         throw ModelError("unknown model '" + name + "'" + (parts.size() > 1 ? " in '" + spec + "'" : "") +
-                         " (known models: " + KnownNames() + ")");
+                         " (known models: " + KnownNames() + ")" + DidYouMean(name, KnownModelNames()));
       const int count = ++seen[name];
       lobe.prefix = count == 1 ? name : name + "#" + std::to_string(count);
       m.lobes_.push_back(std::move(lobe));
@@ -249,6 +260,12 @@ class Model {
   // The run-time model on scalar T (every registered model is compiled for T).
   template <typename T>
   std::unique_ptr<Bxdf<T>> Make() const;
+
+  static std::vector<KnownName> KnownModelNames() {
+    std::vector<KnownName> out;
+    for (const ModelInfo& i : RegisteredModelInfos()) out.push_back({i.name, ""});
+    return out;
+  }
 
   static std::string KnownNames() {
     std::string s;

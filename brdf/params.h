@@ -82,10 +82,17 @@ inline std::vector<double> ParseParams(const ModelInfo& info, const std::string&
         continue;
       }
       std::string known;
-      for (const auto& p : info.params) known += (known.empty() ? "" : ", ") + p.name;
-      for (const auto& s : info.settings) known += (known.empty() ? "" : ", ") + s;
+      std::vector<KnownName> names;
+      for (const auto& p : info.params) {
+        known += (known.empty() ? "" : ", ") + p.name;
+        names.push_back({p.name, p.meaning});
+      }
+      for (const auto& s : info.settings) {
+        known += (known.empty() ? "" : ", ") + s;
+        names.push_back({s, ""});
+      }
       throw ModelError("unknown parameter '" + name + "' for model '" + info.name + "' (parameters: " +
-                       (known.empty() ? "none" : known) + ")");
+                       (known.empty() ? "none" : known) + ")" + DidYouMean(name, names));
     }
     const ParamInfo& p = info.params[index];
     std::vector<std::string> parts;

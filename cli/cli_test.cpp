@@ -9,12 +9,18 @@
 #include <sys/wait.h>
 
 #include "brdf/model.h"
+#include "brdf/params.h"
 #include "tests/cli_util.h"
 
 namespace {
 
+namespace fs = std::filesystem;
 using brdfkit::test::Brdfkit;
 using brdfkit::test::CliRun;
+using brdfkit::test::FreshDir;
+using brdfkit::test::ReadText;
+using brdfkit::test::Shell;
+using brdfkit::test::WriteText;
 
 TEST(Cli, ModelsJsonListsEveryModelWithItsTable) {
   const CliRun r = Brdfkit("models --json");
@@ -69,6 +75,13 @@ TEST(Cli, BadInputIsNamedAndExitsNonZero) {
       {"eval -m ggx -p alpha=0 --wi 0,0,1 --wo 0,0,1", "'alpha'"},
       {"eval -m ggx -p alpha=abc --wi 0,0,1 --wo 0,0,1", "'abc' is not a number"},
       {"eval -m ggx -p roughness=0.1 --wi 0,0,1 --wo 0,0,1", "unknown parameter 'roughness'"},
+      {"eval -m ggx -p roughness=0.1 --wi 0,0,1 --wo 0,0,1", "did you mean alpha?"},
+      {"eval -m ggx_aniso -p roughness=0.1 --wi 0,0,1 --wo 0,0,1", "did you mean alpha_x or alpha_y?"},
+      {"eval -m ggx -p alpah=0.1 --wi 0,0,1 --wo 0,0,1", "did you mean alpha?"},
+      {"eval -m lambert+ggx -p albedo=0.1 --wi 0,0,1 --wo 0,0,1", "did you mean lambert.albedo?"},
+      {"eval -m gxx --wi 0,0,1 --wo 0,0,1", "did you mean ggx?"},
+      {"eval -m cook-torrance --wi 0,0,1 --wo 0,0,1", "did you mean cook_torrance?"},
+      {"stress -m lamberr", "did you mean lambert?"},
       {"eval -m ggx --wi 0,0 --wo 0,0,1", "--wi"},
       {"eval -m ggx --wi 0,0,x --wo 0,0,1", "'x' is not a finite number"},
       {"eval -m ggx --wi 0,0,0 --wo 0,0,1", "zero length"},
@@ -91,6 +104,131 @@ TEST(Cli, EveryCommandHasHelp) {
     EXPECT_EQ(r.code, 0) << cmd;
     EXPECT_NE(r.out.find("Usage"), std::string::npos) << r.out;
   }
+}
+
+// Every generated C header compiles with g++ and clang, as C and as C++,
+// with -Wall -Wextra -Werror -pedantic, holds only finite literals, and its
+// arrays read back the CSV's values (to float precision).
+TEST(Cli, AlbedoHeadersCompileAsCAndCppAndMatchTheCsv) {
+  const fs::path dir = FreshDir("albedo-header");
+  struct Case {
+    std::string axes, extra;
+    std::vector<std::string> arrays;  // name and the CSV file and column holding its values
+  };
+  // Default alpha range (down to 1e-7: accepted with a looser bound), an
+  // explicit range, and an f0 axis.
+  const std::vector<std::string> axes = {"mu:5,alpha:4 --accept-error 1", "mu:6,alpha:3:0.001:1", "mu:4,alpha:3:0.05:1,f0:3"};
+  for (std::size_t k = 0; k < axes.size(); ++k) {
+    const std::string stem = (dir / ("t" + std::to_string(k))).string();
+    const CliRun r = Brdfkit("albedo -m ggx --axes " + axes[k] + " --csv " + stem + ".csv --header " + stem + ".h");
+    ASSERT_EQ(r.code, 0) << axes[k] << "\n" << r.out;
+    const std::string header = ReadText(stem + ".h");
+    for (const char* bad : {"inf", "nan", "INF", "NAN"}) EXPECT_EQ(header.find(bad), std::string::npos) << bad;
+    // A program that prints every value of E, E_avg and ms_norm, in C and C++.
+    const std::string n2 = k == 2 ? "[ggx_albedo_n_f0]" : "";
+    const std::string loops =
+        k == 2 ? "for (i = 0; i < ggx_albedo_n_alpha; ++i) {\n    for (j = 0; j < ggx_albedo_n_f0; ++j) {\n"
+                 "      for (m = 0; m < ggx_albedo_n_mu; ++m) printf(\"%.9g\\n\", (double)ggx_albedo_E[i][j][m]);\n"
+                 "    }\n  }"
+               : "j = 0;\n  for (i = 0; i < ggx_albedo_n_alpha; ++i) {\n"
+                 "    for (m = 0; m < ggx_albedo_n_mu; ++m) printf(\"%.9g\\n\", (double)ggx_albedo_E[i][m]);\n  }";
+    const std::string prog = "#include <stdio.h>\n#include \"" + stem + ".h\"\n#include \"" + stem +
+                             ".h\"\nint main(void) {\n  int i, j, m;\n  " + loops + "\n  (void)j;\n  return 0;\n}\n";
+    WriteText(stem + "_main.c", prog);
+    WriteText(stem + "_main.cpp", prog);
+    std::string expected;
+    {
+      // The CSV lists E as mu,<p1>[,<p2>],E with mu fastest: the C array's order.
+      std::istringstream in(ReadText(stem + ".csv"));
+      std::string line;
+      std::getline(in, line);
+      while (std::getline(in, line)) expected += line.substr(line.rfind(',') + 1) + "\n";
+    }
+    for (const std::string compiler : {"gcc -x c -std=c89", "gcc -x c -std=c11", "g++ -x c++ -std=c++11",
+                                       "clang -x c -std=c99", "clang++ -x c++ -std=c++20"}) {
+      const bool cpp = compiler.find("++") != std::string::npos;
+      const std::string exe = stem + "_prog";
+      const CliRun c = Shell(compiler + " -Wall -Wextra -Werror -pedantic " + stem + (cpp ? "_main.cpp" : "_main.c") +
+                             " -o " + exe);
+      ASSERT_EQ(c.code, 0) << compiler << " on " << axes[k] << ":\n" << c.out;
+      const CliRun out = Shell(exe);
+      ASSERT_EQ(out.code, 0);
+      std::istringstream got(out.out), want(expected);
+      std::string g, w;
+      std::size_t count = 0;
+      while (std::getline(want, w)) {
+        ASSERT_TRUE(std::getline(got, g)) << "fewer values than the CSV";
+        const double gv = std::stod(g), wv = std::stod(w);
+        EXPECT_NEAR(gv, wv, 1e-7 * std::max(1.0, std::abs(wv))) << compiler << " value " << count;
+        ++count;
+      }
+      EXPECT_FALSE(std::getline(got, g)) << "more values than the CSV";
+      EXPECT_GT(count, 10u);
+    }
+  }
+}
+
+// A table that misses its 1e-6 contract (alpha down to 1e-7 at grazing) is
+// not written: the entries are named, the exit code is 1. An explicit
+// --accept-error writes it.
+TEST(Cli, AlbedoTableAboveItsToleranceIsRefused) {
+  const fs::path dir = FreshDir("albedo-contract");
+  const std::string csv = (dir / "t.csv").string();
+  const CliRun r = Brdfkit("albedo -m ggx --axes mu:5,alpha:4 --csv " + csv);
+  EXPECT_EQ(r.code, 1) << r.out;
+  EXPECT_NE(r.out.find("miss the error tolerance 1e-06"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("alpha = 1e-07"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("--accept-error"), std::string::npos) << r.out;
+  EXPECT_FALSE(fs::exists(csv));
+  const CliRun ok = Brdfkit("albedo -m ggx --axes mu:5,alpha:4 --accept-error 1 --csv " + csv);
+  EXPECT_EQ(ok.code, 0) << ok.out;
+  EXPECT_TRUE(fs::exists(csv));
+  // Within the contract: no option needed.
+  EXPECT_EQ(Brdfkit("albedo -m ggx --axes mu:5,alpha:4:0.001:1 --csv " + csv).code, 0);
+}
+
+// Data measured through the default instrument's 1 degree detector, fitted
+// without it: the fit warns and names the option; through the sidecar's
+// instrument it recovers the truth.
+TEST(Cli, PlainFitOfApertureDataWarnsAndNamesTheInstrument) {
+  const fs::path dir = FreshDir("fit-apertures");
+  const std::string data = (dir / "data.csv").string();
+  CliRun r = Brdfkit("synth -m lambert+ggx -p lambert.albedo=0.2,ggx.alpha=0.1 --out " + data);
+  ASSERT_EQ(r.code, 0) << r.out;
+  r = Brdfkit("fit --data " + data + " -m lambert+ggx --no-covariance --json");
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_NE(r.out.find("finite apertures"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("--instrument " + data + ".json"), std::string::npos) << r.out;
+  r = Brdfkit("fit --data " + data + " -m lambert+ggx --no-covariance --json --instrument " + data + ".json",
+              "");
+  ASSERT_EQ(r.code, 0) << r.out;
+  EXPECT_EQ(r.out.find("finite apertures"), std::string::npos) << r.out;
+  const auto j = nlohmann::json::parse(r.out.substr(r.out.find('{')));
+  EXPECT_TRUE(j["warnings"].empty());
+  EXPECT_NEAR(j["params"]["ggx.alpha"].get<double>(), 0.1, 2e-3);
+  EXPECT_NEAR(j["params"]["lambert.albedo"][0].get<double>(), 0.2, 0.01);
+  // The built-in instrument is noiseless: no sigma, so no chi-square; the
+  // aperture-aware fit reproduces the data.
+  EXPECT_TRUE(j["chi2_reduced"].is_null());
+  EXPECT_LT(j["relative_error"]["max"].get<double>(), 1e-6);
+}
+
+// Scene messages: a misspelt top-level key is named as such (with the
+// nearest known key), and a relative path is shown as resolved.
+TEST(Cli, SceneMessagesNameTheKeyAndTheResolvedPath) {
+  const fs::path dir = FreshDir("scene-messages");
+  WriteText(dir / "typo.json", R"({"material": {"a": {"model": "lambert"}},
+    "tasks": [{"name": "c", "type": "check", "materials": ["a"]}]})");
+  CliRun r = Brdfkit("run " + (dir / "typo.json").string() + " --dry-run");
+  EXPECT_EQ(r.code, 2) << r.out;
+  EXPECT_NE(r.out.find("material: unknown key"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("did you mean materials?"), std::string::npos) << r.out;
+  WriteText(dir / "missing.json", R"({"materials": {"m": {"merl": "data/none.binary"}},
+    "tasks": [{"name": "c", "type": "check", "materials": ["m"]}]})");
+  r = Brdfkit("run missing.json --dry-run", "cd " + dir.string() + " && ");
+  EXPECT_EQ(r.code, 2) << r.out;
+  const std::string resolved = fs::weakly_canonical(dir).string() + "/data/none.binary";
+  EXPECT_NE(r.out.find("'data/none.binary' (resolved to '" + resolved + "')"), std::string::npos) << r.out;
 }
 
 }  // namespace

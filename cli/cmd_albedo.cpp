@@ -1,3 +1,4 @@
+#include <algorithm>
 #include <cctype>
 #include <cstdio>
 #include <iostream>
@@ -14,7 +15,7 @@ void RegisterAlbedo(CLI::App& app) {
       "multiple-scattering compensation terms. The entry at mu = 0 holds the limit mu -> 0.");
   static ModelArgs margs;
   static std::string axes, nodes = "uniform", csv, exr, header, prefix;
-  static double tolerance = validate::AlbedoQuadratureOptions{}.abs_tolerance;
+  static double tolerance = validate::AlbedoQuadratureOptions{}.abs_tolerance, accept_error = 0;
   static int channel = 0;
   static bool json = false;
   AddModelOptions(cmd, margs);
@@ -36,16 +37,31 @@ void RegisterAlbedo(CLI::App& app) {
   cmd->add_option("--header-prefix", prefix, "symbol prefix in the header (default <model>_albedo)");
   cmd->add_option("--tolerance", tolerance, "absolute error target per entry (default 1e-6, the tables' accuracy contract)")
       ->check(CLI::Range(1e-12, 1e-2));
+  cmd->add_option("--accept-error", accept_error,
+                  "accept entries whose error estimate is up to this (default: the tolerance). A table with an "
+                  "entry above it is not written: the entries are listed and the exit code is 1")
+      ->check(CLI::Range(1e-12, 1e3));
   cmd->add_option("--channel", channel, "RGB channel tabulated (0, 1, 2)")->check(CLI::Range(0, 2));
   cmd->add_flag("--json", json, "print the tables as JSON on stdout");
   cmd->callback([] {
     const LoadedModel m = LoadModel(margs);
+    if (!prefix.empty()) {
+      bool ident = !std::isdigit(static_cast<unsigned char>(prefix[0]));
+      for (char c : prefix) ident = ident && (std::isalnum(static_cast<unsigned char>(c)) || c == '_');
+      if (!ident) throw UsageError("--header-prefix '" + prefix + "' is not a C identifier (letters, digits, '_')");
+    }
     validate::AlbedoTableRequest req;
     req.axes = validate::ParseAxes(axes);
     req.rule = nodes == "gauss" ? validate::NodeRule::kGauss : validate::NodeRule::kUniform;
     req.quadrature.abs_tolerance = tolerance;
     req.channel = channel;
     const validate::AlbedoTable t = validate::BuildAlbedoTable(m.model, m.params, req);
+    const double accepted = std::max(accept_error, tolerance);
+    const std::vector<validate::AlbedoMiss> misses = validate::EntriesAboveTolerance(t, accepted);
+    if (!misses.empty())
+      throw ResultError(validate::DescribeMisses(misses, accepted) +
+                        "\nNo table was written. Narrow the parameter range (an alpha axis such as "
+                        "alpha:32:0.001:1), or accept a looser table with --accept-error.");
     if (!csv.empty()) validate::WriteAlbedoCsv(t, csv);
     if (!exr.empty()) validate::WriteAlbedoExr(t, exr);
     if (!header.empty()) {

@@ -12,11 +12,13 @@ namespace brdfkit::cli {
 namespace {
 
 // The property a reason belongs to: the text before its first ':'.
-bool Failed(const validate::CheckResult& r, const std::string& property) {
-  for (const std::string& s : r.reasons)
+bool Names(const std::vector<std::string>& reasons, const std::string& property) {
+  for (const std::string& s : reasons)
     if (s.rfind(property + ":", 0) == 0) return true;
   return false;
 }
+bool Failed(const validate::CheckResult& r, const std::string& property) { return Names(r.reasons, property); }
+bool Undecided(const validate::CheckResult& r, const std::string& property) { return Names(r.inconclusive, property); }
 
 nlohmann::json ResultJson(const validate::CheckResult& r) {
   nlohmann::json j = {
@@ -28,7 +30,10 @@ nlohmann::json ResultJson(const validate::CheckResult& r) {
       {"pdf_integral", r.pdf_integral},
       {"chi2_p_value", r.chi2_p_value},
       {"plausible", r.plausible},
+      {"verdict", r.Verdict()},
       {"reasons", r.reasons},
+      {"inconclusive", r.inconclusive},
+      {"albedo_tightened", r.albedo_tightened},
       {"albedo_max_error", r.albedo_max_error},
       {"albedo_max_at_phi", r.albedo_max_at_phi},
       {"albedo_max_per_channel", {r.albedo_max_per_channel[0], r.albedo_max_per_channel[1], r.albedo_max_per_channel[2]}},
@@ -58,7 +63,9 @@ nlohmann::json ResultJson(const validate::CheckResult& r) {
 }
 
 void PrintText(const validate::CheckResult& r) {
-  const auto status = [&](const char* property) { return Failed(r, property) ? "FAIL" : "ok  "; };
+  const auto status = [&](const char* property) {
+    return Failed(r, property) ? "FAIL" : (Undecided(r, property) ? "??  " : "ok  ");
+  };
   std::printf("  reciprocity  %s max relative asymmetry %.3g over %lld pairs (normal, grazing 1e-6 rad, mirror, retro, random)\n",
               status("reciprocity"), r.reciprocity_max_rel_error, static_cast<long long>(r.pairs_checked));
   std::printf("  energy       %s max directional albedo %.9g (+- %.2g) at mu = %.3g%s; at normal %.6g, at mu = 1e-7 %.6g\n",
@@ -77,8 +84,10 @@ void PrintText(const validate::CheckResult& r) {
     if (r.has_smith_g1) std::printf(", weak white furnace in [%.9f, %.9f]", r.furnace_min, r.furnace_max);
     std::printf("\n");
   }
-  std::printf("verdict: %s\n", r.plausible ? "plausible" : "NOT plausible");
+  const std::string verdict = r.Verdict();
+  std::printf("verdict: %s\n", verdict == "implausible" ? "NOT plausible" : verdict.c_str());
   for (const std::string& s : r.reasons) std::printf("  - %s\n", s.c_str());
+  for (const std::string& s : r.inconclusive) std::printf("  ? %s\n", s.c_str());
 }
 
 }  // namespace
@@ -89,9 +98,10 @@ void RegisterCheck(CLI::App& app) {
   auto* cmd = app.add_subcommand(
       "check",
       "physical plausibility: reciprocity, energy conservation (incl. grazing), finite non-negative values, "
-      "sampling consistency, microfacet normalisation. Thresholds: reciprocity 1e-9 relative; albedo <= 1 + "
-      "error + 1e-6; chi-square p >= 0.01 (Sidak); int D cos and weak furnace = 1 within 1e-6. "
-      "An implausible model is a result (exit 0).");
+      "sampling consistency (models that sample), microfacet normalisation. Thresholds: reciprocity 1e-9 "
+      "relative; albedo <= 1 + 1e-6 (ok when the whole error bar is below, FAIL when it is wholly above, "
+      "inconclusive '??' otherwise); chi-square p >= 0.01 (Sidak); int D cos and weak furnace = 1 within 1e-6. "
+      "Verdict: plausible, NOT plausible or inconclusive; each is a result (exit 0).");
   static ModelArgs margs;
   static bool json = false, sweep = false, no_sampling = false;
   static int per_axis = 4;
@@ -165,18 +175,21 @@ void RegisterCheck(CLI::App& app) {
     std::printf("sweep of %s: %zu points\n", m.model.Spec().c_str(), points.size());
     for (std::size_t i : shown) std::printf("%12s ", info.params[i].name.c_str());
     std::printf("%12s %10s %12s %9s  %s\n", "albedo_max", "at_mu", "reciprocity", "verdict", "failed");
-    std::size_t bad = 0;
+    std::size_t bad = 0, undecided = 0;
     for (std::size_t k = 0; k < points.size(); ++k) {
       const validate::CheckResult& r = s.results[k];
       for (std::size_t i : shown) std::printf("%12.4g ", points[k][info.Offset(i)]);
       std::string failed;
       for (const char* prop : {"reciprocity", "energy", "values", "sampling", "microfacet"})
         if (Failed(r, prop)) failed += (failed.empty() ? "" : ",") + std::string(prop);
+      for (const char* prop : {"energy"})
+        if (Undecided(r, prop)) failed += (failed.empty() ? "" : ",") + std::string(prop) + "?";
       std::printf("%12.6g %10.3g %12.3g %9s  %s\n", r.albedo_max, r.albedo_max_at_mu, r.reciprocity_max_rel_error,
-                  r.plausible ? "ok" : "FAIL", failed.c_str());
-      bad += r.plausible ? 0 : 1;
+                  r.plausible ? "ok" : (r.reasons.empty() ? "??" : "FAIL"), failed.c_str());
+      bad += r.reasons.empty() ? 0 : 1;
+      undecided += r.reasons.empty() && !r.inconclusive.empty() ? 1 : 0;
     }
-    std::printf("%zu of %zu points implausible\n", bad, points.size());
+    std::printf("%zu of %zu points implausible, %zu inconclusive\n", bad, points.size(), undecided);
   });
 }
 

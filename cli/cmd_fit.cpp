@@ -55,7 +55,26 @@ nlohmann::json ResultJson(const fit::Result& r, const fit::Options& o) {
   if (o.loss != fit::Loss::kNone) j["loss_scale"] = r.loss_scale;
   j["cost"] = r.cost;
   j["rmse"] = r.rmse;
-  j["chi2_reduced"] = r.chi2_reduced;
+  j["chi2_reduced"] = Number(r.chi2_reduced);
+  if (!std::isfinite(r.chi2_reduced))
+    j["chi2_note"] = "null: the data carry no sigma, so there is no stated noise to compare the residuals with";
+  const auto stats = [](const fit::ErrorStats& e) {
+    return nlohmann::json{{"count", e.count}, {"median", Number(e.median)}, {"p95", Number(e.p95)}, {"max", Number(e.max)}};
+  };
+  j["relative_error"] = stats(r.relative_error);
+  nlohmann::json bands = nlohmann::json::array();
+  for (const fit::BandStats& b : r.relative_error_bands) {
+    nlohmann::json e = stats(b.stats);
+    e["theta_h_deg"] = {b.theta_h_min_deg, b.theta_h_max_deg};
+    bands.push_back(e);
+  }
+  j["relative_error_bands"] = bands;
+  j["relative_error_definition"] =
+      "|f_fit - f_data| / max(f_data, 1e-3 x the channel's mean), per sample and channel, over the samples used";
+  j["stddev_meaning"] =
+      "statistical given the model: how well the data determine this model's parameters, not how far the model is "
+      "from the material";
+  j["warnings"] = r.warnings;
   j["iterations"] = r.iterations;
   j["starts"] = r.starts;
   j["seconds"] = r.seconds;
@@ -162,7 +181,9 @@ void RegisterFit(CLI::App& app) {
   cmd->add_option("--model,-m", model, "model or sum of lobes (lambert+ggx), or fit:FILE to refine a previous fit")
       ->required();
   cmd->add_option("--init", init, "initial guess name=value,... (default: multi-start over roughness-like parameters)");
-  cmd->add_option("--metric", metric, "l2, relative, cosine (Ngan 2005), log (Low 2012) or cbrt (Fores 2012)");
+  cmd->add_option("--metric", metric,
+                  "l2 (default), relative, cosine (Ngan 2005), log (Low 2012) or cbrt (Fores 2012); for measured "
+                  "data without sigma, cbrt or log weight the specular peak and the diffuse tail alike");
   cmd->add_option("--max-theta-deg", max_theta, "drop samples with theta_i or theta_o above this (default 80 for cosine)");
   cmd->add_option("--loss", loss, "robust loss: none, huber or cauchy, with optional :scale");
   cmd->add_option("--solver", solver, "linear solver: dense_qr, dense_normal_cholesky, iterative_schur or cgnr");
@@ -218,6 +239,7 @@ void RegisterFit(CLI::App& app) {
     if (ds.missing > 0)
       std::fprintf(stderr, "brdfkit: %zu missing sample(s) in '%s' skipped\n", ds.missing, data.c_str());
     const fit::Result r = fit::Fit(m, ds, o);
+    for (const std::string& w : r.warnings) std::fprintf(stderr, "brdfkit: warning: %s\n", w.c_str());
     const nlohmann::json j = ResultJson(r, o);
     if (!out.empty()) WriteFileAtomic(out, j.dump(2) + "\n");
     if (!trace.empty()) WriteFileAtomic(trace, TraceCsv(r));
@@ -234,8 +256,17 @@ void RegisterFit(CLI::App& app) {
                 fit::MetricName(o.metric).c_str(), r.rmse, r.cost, r.iterations, r.starts, r.seconds,
                 r.converged ? "converged" : "NOT converged");
     std::printf("samples  %zu used, %zu missing, %zu beyond the angle cut\n", r.used, r.missing, r.dropped_angle);
+    if (std::isfinite(r.chi2_reduced)) std::printf("chi2     reduced chi-square %.6g (residuals weighted by the data's sigma)\n", r.chi2_reduced);
+    else std::printf("chi2     not available: the data carry no sigma\n");
+    const fit::ErrorStats& e = r.relative_error;
+    std::printf("rel err  |f_fit - f_data| / f_data: median %.3g, 95th percentile %.3g, max %.3g\n", e.median, e.p95, e.max);
+    for (const fit::BandStats& b : r.relative_error_bands)
+      std::printf("         theta_h %2g-%2g deg: median %.3g, 95th percentile %.3g, max %.3g (%zu values)\n",
+                  b.theta_h_min_deg, b.theta_h_max_deg, b.stats.median, b.stats.p95, b.stats.max, b.stats.count);
+    std::printf("note     +- are standard deviations, statistical given the model (not the model's distance from the material)\n");
     if (!r.covariance_message.empty()) std::printf("note     %s\n", r.covariance_message.c_str());
     if (!r.converged) std::printf("solver   %s\n", r.message.c_str());
+
   });
 }
 

@@ -147,7 +147,9 @@ void RegisterStress(CLI::App& app) {
     for (const std::string& m : models) {
       bool known = false;
       for (const ModelInfo& i : RegisteredModelInfos()) known = known || i.name == m;
-      if (!known) throw UsageError("stress: unknown model '" + m + "' (known models: " + Model::KnownNames() + ")");
+      if (!known)
+        throw UsageError("stress: unknown model '" + m + "' (known models: " + Model::KnownNames() + ")" +
+                         DidYouMean(m, Model::KnownModelNames()));
       so.models.push_back(m);
     }
     if (!merl.empty()) {

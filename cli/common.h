@@ -20,6 +20,14 @@ class UsageError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+// A result that misses its own accuracy contract (an albedo table whose
+// error estimates exceed the tolerance): reported as "brdfkit: error:
+// <message>" with exit code 1, and nothing is written.
+class ResultError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
 struct ModelArgs {
   std::string model;
   std::string params;

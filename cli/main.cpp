@@ -33,6 +33,9 @@ int main(int argc, char** argv) {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
+  } catch (const brdfkit::cli::ResultError& e) {
+    std::fprintf(stderr, "brdfkit: error: %s\n", e.what());
+    return 1;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "brdfkit: error: %s\n", e.what());
     return 2;

@@ -115,12 +115,14 @@ std::string CheckHtml(const json& r) {
   std::string h = "<table><tr><th>material</th><th>verdict</th><th>reciprocity error</th><th>albedo max (at mu)</th>"
                   "<th>min f_r</th><th>non-finite</th><th>chi&sup2; p</th><th>failed</th></tr>";
   for (const json& m : r.at("materials")) {
-    const bool ok = m.at("plausible").get<bool>();
+    const std::string verdict = m.value("verdict", m.at("plausible").get<bool>() ? "plausible" : "implausible");
+    const char* css = verdict == "plausible" ? "ok" : (verdict == "implausible" ? "bad" : "undecided");
     std::string reasons;
     for (const json& s : m.at("reasons")) reasons += "<li>" + Esc(s.get<std::string>()) + "</li>";
+    for (const json& s : m.value("inconclusive", json::array()))
+      reasons += "<li>inconclusive: " + Esc(s.get<std::string>()) + "</li>";
     h += "<tr><td><b>" + Esc(m.at("material").get<std::string>()) + "</b><br><small>" +
-         Esc(m.value("description", "")) + "</small></td><td class=\"" + (ok ? "ok" : "bad") + "\">" +
-         (ok ? "plausible" : "implausible") + "</td><td>" + Num(m.at("reciprocity_max_rel_error"), "%.3g") +
+         Esc(m.value("description", "")) + "</small></td><td class=\"" + css + "\">" + verdict + "</td><td>" + Num(m.at("reciprocity_max_rel_error"), "%.3g") +
          "</td><td>" + Num(m.at("albedo_max"), "%.6f") + " (" + Num(m.at("albedo_max_at_mu"), "%.3g") + ")</td><td>" +
          Num(m.at("min_value"), "%.3g") + "</td><td>" + std::to_string(m.at("nonfinite_count").get<long long>()) +
          "</td><td>" + Num(m.at("chi2_p_value"), "%.3g") + "</td><td><ul>" + reasons + "</ul></td></tr>";
@@ -150,7 +152,27 @@ std::string FitHtml(const json& r) {
     }
     h += "<tr><td>" + Esc(it.key()) + "</td><td>" + v + "</td><td>" + d + "</td></tr>";
   }
-  return h + "</table>";
+  h += "</table><p><small>Standard deviations are statistical given the model: how well the data determine this "
+       "model's parameters, not how far the model is from the material. Reduced chi-square: " +
+       (r.contains("chi2_reduced") && r.at("chi2_reduced").is_number() ? Num(r.at("chi2_reduced"), "%.4g")
+                                                                         : std::string("none (the data carry no sigma)")) +
+       ".</small></p>";
+  if (r.contains("relative_error")) {
+    h += "<table><tr><th>relative error |f_fit - f_data| / f_data</th><th>median</th><th>95th percentile</th>"
+         "<th>max</th><th>values</th></tr>";
+    const auto row = [&](const std::string& label, const json& e) {
+      h += "<tr><td>" + label + "</td><td>" + Num(e.at("median"), "%.3g") + "</td><td>" + Num(e.at("p95"), "%.3g") +
+           "</td><td>" + Num(e.at("max"), "%.3g") + "</td><td>" + std::to_string(e.at("count").get<long long>()) +
+           "</td></tr>";
+    };
+    row("all samples", r.at("relative_error"));
+    for (const json& b : r.value("relative_error_bands", json::array()))
+      row("theta_h " + Num(b.at("theta_h_deg")[0], "%g") + "&ndash;" + Num(b.at("theta_h_deg")[1], "%g") + "&deg;", b);
+    h += "</table>";
+  }
+  for (const json& w : r.value("warnings", json::array()))
+    h += "<p class=\"bad\">Warning: " + Esc(w.get<std::string>()) + "</p>";
+  return h;
 }
 
 std::string SynthHtml(const json& r) {
@@ -190,7 +212,7 @@ void WriteReport(const std::string& path, const Scene& scene, const std::vector<
        "body{font-family:sans-serif;max-width:1000px;margin:2em auto;padding:0 1em;color:#222}\n"
        "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:4px 8px;text-align:left;"
        "vertical-align:top}th{background:#f3f3f3}td ul{min-width:18em}\n.ok{color:#1a7f37;font-weight:bold}.bad{color:#c62828;"
-       "font-weight:bold}\nfigure{margin:1em 0}img.plot{max-width:100%;border:1px solid #ddd}figcaption{font-size:"
+       "font-weight:bold}.undecided{color:#9a6700;font-weight:bold}\nfigure{margin:1em 0}img.plot{max-width:100%;border:1px solid #ddd}figcaption{font-size:"
        "90%;color:#444}\nul{margin:0;padding-left:1.2em}code{background:#f3f3f3;padding:0 3px}\n</style></head>\n"
        "<body data-figures-rendered=\"pending\">\n";
   h += "<h1>brdfkit report" + (scene.title.empty() ? std::string() : ": " + Esc(scene.title)) + "</h1>\n";

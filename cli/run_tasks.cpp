@@ -100,7 +100,7 @@ TaskOutcome RunCheck(const TaskSpec& t, const RunContext& ctx) {
   TaskDir dir(ctx, t.name);
   json materials = json::array();
   Progress progress("check " + t.name, double(t.materials.size()), ctx.quiet);
-  std::size_t implausible = 0;
+  std::size_t implausible = 0, inconclusive = 0;
   for (std::size_t k = 0; k < t.materials.size(); ++k) {
     ThrowIfInterrupted();
     progress.Update(double(k), t.materials[k]);
@@ -116,10 +116,11 @@ TaskOutcome RunCheck(const TaskSpec& t, const RunContext& ctx) {
     j["model"] = lm.model.Spec();
     j["params"] = FormatParams(lm.model.Info(), lm.params);
     j["description"] = Describe(m, lm);
-    implausible += r.plausible ? 0 : 1;
+    implausible += r.reasons.empty() ? 0 : 1;
+    inconclusive += r.reasons.empty() && !r.inconclusive.empty() ? 1 : 0;
     materials.push_back(j);
   }
-  o.result = {{"materials", materials}, {"implausible", implausible}};
+  o.result = {{"materials", materials}, {"implausible", implausible}, {"inconclusive", inconclusive}};
   WriteFileAtomic(dir.Abs("check.json"), materials.dump(2) + "\n");
   o.files.push_back(dir.Rel("check.json"));
   return o;
@@ -139,6 +140,11 @@ TaskOutcome RunAlbedo(const TaskSpec& t, const RunContext& ctx) {
   req.progress = progress.Callback();
   const validate::AlbedoTable table = validate::BuildAlbedoTable(model, t.params, req);
   progress.Finish();
+  const double accepted = std::max(t.accept_error, t.tolerance);
+  const std::vector<validate::AlbedoMiss> misses = validate::EntriesAboveTolerance(table, accepted);
+  if (!misses.empty())
+    throw ResultError("task '" + t.name + "': " + validate::DescribeMisses(misses, accepted) +
+                      "\nNarrow the parameter range in \"axes\" or set \"accept_error\".");
   for (const std::string& f : t.formats) {
     if (f == "csv") {
       validate::WriteAlbedoCsv(table, dir.Abs("albedo.csv"));

@@ -25,6 +25,12 @@ using json = nlohmann::json;
   throw std::runtime_error(origin + ": " + (path.empty() ? "" : path + ": ") + what);
 }
 
+std::string Join(const std::vector<std::string>& v) {
+  std::string out;
+  for (const std::string& x : v) out += (out.empty() ? "" : ", ") + x;
+  return out;
+}
+
 // Reads one JSON object, remembering the keys used so that unknown keys
 // (typos) are reported instead of ignored.
 class Reader {
@@ -81,6 +87,16 @@ class Reader {
     }
     return out;
   }
+  // Keys outside `known` are errors, reported before anything else is read
+  // (a misspelt section would otherwise surface as a missing one).
+  void Only(const std::vector<std::string>& known) const {
+    std::vector<KnownName> names;
+    for (const std::string& k : known) names.push_back({k, ""});
+    for (auto it = j_.begin(); it != j_.end(); ++it)
+      if (std::find(known.begin(), known.end(), it.key()) == known.end() && it.key() != "$comment" &&
+          it.key() != "description")
+        FailKey(it.key(), "unknown key (known keys: " + Join(known) + ")" + DidYouMean(it.key(), names));
+  }
   // Unknown keys are errors; "$comment" and "description" are free text.
   void Finish() const {
     for (auto it = j_.begin(); it != j_.end(); ++it)
@@ -109,15 +125,24 @@ std::string Resolve(const std::string& base_dir, const std::string& p) {
   return (fs::path(base_dir) / p).lexically_normal().string();
 }
 
+// A path as the user wrote it and, when relative, as it was resolved:
+// "'data/x.binary' (resolved to '/home/me/scenes/data/x.binary')".
+std::string ShownPath(const std::string& given, const std::string& resolved) {
+  std::error_code ec;
+  const fs::path abs = fs::absolute(resolved, ec).lexically_normal();
+  if (fs::path(given).is_absolute() || ec) return "'" + resolved + "'";
+  return "'" + given + "' (resolved to '" + abs.string() + "')";
+}
+
 // The file must exist and be a readable regular file.
 std::string ExistingFile(const std::string& base_dir, const std::string& p, const std::string& origin,
                          const std::string& key_path) {
   const std::string r = Resolve(base_dir, p);
   std::error_code ec;
-  if (!fs::exists(r, ec)) Fail(origin, key_path, "file '" + r + "' not found");
-  if (fs::is_directory(r, ec)) Fail(origin, key_path, "'" + r + "' is a directory, not a file");
+  if (!fs::exists(r, ec)) Fail(origin, key_path, "file " + ShownPath(p, r) + " not found");
+  if (fs::is_directory(r, ec)) Fail(origin, key_path, ShownPath(p, r) + " is a directory, not a file");
   std::ifstream in(r, std::ios::binary);
-  if (!in) Fail(origin, key_path, "cannot read '" + r + "'");
+  if (!in) Fail(origin, key_path, "cannot read " + ShownPath(p, r));
   return r;
 }
 
@@ -224,6 +249,7 @@ Scene ParseScene(const std::string& text, const std::string& origin, const std::
   s.origin = origin;
   s.base_dir = base_dir;
   Reader top(root, "", s.origin);
+  top.Only({"$schema", "title", "output", "materials", "instruments", "tasks", "outputs"});
   if (top.Has("$schema")) top.Get("$schema");
   s.title = top.String("title", "");
   s.output = top.String("output", s.output);
@@ -362,6 +388,7 @@ Scene ParseScene(const std::string& text, const std::string& origin, const std::
       if (nodes != "uniform" && nodes != "gauss") r.FailKey("nodes", "expected \"uniform\" or \"gauss\"");
       t.gauss_nodes = nodes == "gauss";
       t.tolerance = r.Number("tolerance", t.tolerance, 1e-12, 1e-2);
+      t.accept_error = r.Number("accept_error", t.accept_error, 1e-12, 1e3);
       t.formats = r.Strings("formats", false);
       if (!r.Has("formats")) t.formats = {"csv", "exr", "header"};
       for (const std::string& f : t.formats)
@@ -494,7 +521,9 @@ Scene ParseScene(const std::string& text, const std::string& origin, const std::
 
 Scene LoadScene(const std::string& path) {
   std::error_code ec;
-  if (!fs::exists(path, ec)) throw std::runtime_error(path + ": scene file not found");
+  if (!fs::exists(path, ec))
+    throw std::runtime_error(path + ": scene file not found" +
+                             (fs::path(path).is_absolute() ? "" : " (resolved to '" + fs::absolute(path, ec).string() + "')"));
   if (fs::is_directory(path, ec)) throw std::runtime_error(path + ": is a directory, not a scene file");
   std::ifstream in(path, std::ios::binary);
   if (!in) throw std::runtime_error(path + ": cannot read the scene file");

@@ -52,6 +52,7 @@ struct TaskSpec {
   std::string axes = "mu:32,alpha:32";
   bool gauss_nodes = false;
   double tolerance = 1e-6;  // as validate::AlbedoQuadratureOptions
+  double accept_error = 0;  // largest accepted error estimate (0: the tolerance)
   std::vector<std::string> formats;  // albedo: csv, exr, header; synth: csv, binary, exr
   // synth
   std::string material;

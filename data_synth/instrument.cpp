@@ -331,6 +331,9 @@ Instrument LoadInstrument(const std::string& path) {
   } catch (const json::exception& e) {  // parse errors, and out_of_range for numbers beyond a double
     throw std::runtime_error(path + ": not valid JSON: " + e.what());
   }
+  // A synthetic measurement's sidecar holds the instrument it was made with.
+  if (j.is_object() && j.contains("brdfkit_version") && j.contains("instrument"))
+    return ParseInstrument(j["instrument"], path + ": instrument", std::filesystem::path(path).parent_path().string());
   return ParseInstrument(j, path, std::filesystem::path(path).parent_path().string());
 }
 

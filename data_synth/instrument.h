@@ -108,6 +108,8 @@ Instrument DefaultInstrument();
 // (e.g. "lab.json: detector.angular_radius_deg: expected a number").
 // Relative list-file paths are taken relative to `base_dir`.
 Instrument ParseInstrument(const nlohmann::json& j, const std::string& file, const std::string& base_dir = "");
+// Reads an instrument file, or the sidecar (DATA.json) of a synthetic
+// measurement, which records the instrument it was made with.
 Instrument LoadInstrument(const std::string& path);
 
 // The same JSON layout that ParseInstrument reads (round-trips).

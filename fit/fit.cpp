@@ -11,6 +11,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <limits>
 #include <numeric>
 #include <random>
@@ -19,6 +20,7 @@
 #include <thread>
 
 #include "brdf/merl.h"
+#include "brdf/params.h"
 #include "data_synth/forward_model.h"
 #include "data_synth/instrument.h"
 #include "data_synth/table_io.h"
@@ -146,9 +148,29 @@ Dataset LoadDataset(const std::string& path) {
   namespace fs = std::filesystem;
   std::error_code ec;
   const bool merl_name = fs::path(path).extension() == ".binary";
-  if (merl_name || (fs::is_regular_file(path, ec) && LooksLikeMerl(path)))
-    return FromMerl(MerlTable::Read(path), path);
-  return FromTable(synth::ReadTableCsv(path), path);
+  Dataset d = merl_name || (fs::is_regular_file(path, ec) && LooksLikeMerl(path))
+                  ? FromMerl(MerlTable::Read(path), path)
+                  : FromTable(synth::ReadTableCsv(path), path);
+  const std::string side = path + ".json";
+  if (fs::is_regular_file(side, ec)) {
+    // The sidecar is a description, not data: one that cannot be read
+    // leaves the data as they are.
+    try {
+      const synth::Instrument inst = synth::LoadInstrument(side);
+      std::string what;
+      if (inst.source.kind == synth::Source::Kind::kDisc && inst.source.angular_radius > 0)
+        what = "a " + FormatDouble(inst.source.angular_radius * 180 / kPi) + " degree disc source";
+      if (inst.detector.angular_radius > 0)
+        what += (what.empty() ? "a " : " and a ") + FormatDouble(inst.detector.angular_radius * 180 / kPi) +
+                " degree detector";
+      if (!what.empty()) {
+        d.apertures = what;
+        d.sidecar = side;
+      }
+    } catch (const std::exception&) {
+    }
+  }
+  return d;
 }
 
 // ---------------------------------------------------------------------------
@@ -198,6 +220,7 @@ double MetricSlope(Metric m, double f, double cos_i) {
 struct Prepared {
   std::vector<Eigen::Vector3d> wi, wo;
   std::vector<double> cos_i;
+  std::vector<Eigen::Array3d> reference;  // the data's f_r
   std::vector<Eigen::Array3d> target;    // G(reference)
   std::vector<Eigen::Array3d> w_fit;     // weights of the fitted residuals
   std::vector<Eigen::Array3d> w_metric;  // weights of the metric (no sigma)
@@ -236,6 +259,7 @@ Prepared Prepare(const Dataset& data, const std::vector<std::size_t>& index, con
   p.wo.resize(n);
   p.cos_i.resize(n);
   p.target.resize(n);
+  p.reference.resize(n);
   p.w_fit.resize(n);
   p.w_metric.resize(n);
   // Relative metric: a floor keeps near-zero reference values from
@@ -254,6 +278,7 @@ Prepared Prepare(const Dataset& data, const std::vector<std::size_t>& index, con
     p.wo[q] = s.wo.normalized();
     const double c = p.wi[q].z();
     p.cos_i[q] = c;
+    p.reference[q] = s.f;
     for (int ch = 0; ch < 3; ++ch) {
       const double g = s.f[ch];
       p.target[q][ch] = MetricTransform(o.metric, g, c);
@@ -358,18 +383,23 @@ class Engine {
   // the plain metric.
   template <class T>
   void SampleResiduals(const Bxdf<T>& b, const T* p, const Prepared& d, std::size_t q, bool fit, T* out) const {
-    Rgb<T> f;
-    if (quad_) {
-      f = synth::MeasuredBrdf(b, p, d.wi[q], d.wo[q], *quad_);
-    } else {
-      const Vec3<T> wi = d.wi[q].template cast<T>(), wo = d.wo[q].template cast<T>();
-      f = b.Eval(p, wi, wo);
-    }
+    const Rgb<T> f = Prediction(b, p, d, q);
     for (int c = 0; c < 3; ++c) {
       const T g = MetricTransform(metric_, f[c], d.cos_i[q]);
       if (fit) out[c] = Robust(loss_, loss_scale_, T(T(d.w_fit[q][c]) * (g - T(d.target[q][c]))));
       else out[c] = T(d.w_metric[q][c]) * (g - T(d.target[q][c]));
     }
+  }
+
+  // The model's value for sample q: f_r, or f_r through the instrument's apertures.
+  template <class T>
+  Rgb<T> Prediction(const Bxdf<T>& b, const T* p, const Prepared& d, std::size_t q) const {
+    if (quad_) return synth::MeasuredBrdf(b, p, d.wi[q], d.wo[q], *quad_);
+    const Vec3<T> wi = d.wi[q].template cast<T>(), wo = d.wo[q].template cast<T>();
+    return b.Eval(p, wi, wo);
+  }
+  Eigen::Array3d Predict(const std::vector<double>& p, const Prepared& d, std::size_t q) const {
+    return Prediction(*b_, p.data(), d, q);
   }
 
   // Residuals (3 per sample) over [begin, end), internal parameters u.
@@ -587,6 +617,65 @@ double Rmse(const Engine& e, const Prepared& d, const std::vector<double>& u, in
     });
   for (auto& t : pool) t.join();
   return std::sqrt(std::accumulate(sums.begin(), sums.end(), 0.0) / (3.0 * d.size()));
+}
+
+// Quantile q of sorted values, linear between order statistics (position
+// q (n - 1), the usual sample quantile).
+double Quantile(const std::vector<double>& sorted, double q) {
+  const double pos = q * double(sorted.size() - 1);
+  const std::size_t i = static_cast<std::size_t>(pos);
+  if (i + 1 >= sorted.size()) return sorted.back();
+  return sorted[i] + (pos - double(i)) * (sorted[i + 1] - sorted[i]);
+}
+
+ErrorStats StatsOf(std::vector<double> v) {
+  ErrorStats s;
+  s.count = v.size();
+  if (v.empty()) return s;
+  std::sort(v.begin(), v.end());
+  s.median = Quantile(v, 0.5);
+  s.p95 = Quantile(v, 0.95);
+  s.max = v.back();
+  return s;
+}
+
+// Relative errors of the fitted model (user parameters p) against the data,
+// over all samples and by theta_h band (Result::relative_error).
+void RelativeErrors(const Engine& e, const Prepared& d, const std::vector<double>& p, int threads, Result& res) {
+  const std::size_t n = d.size();
+  std::vector<Eigen::Array3d> pred(n);
+  const std::size_t workers = static_cast<std::size_t>(std::max(1, threads));
+  std::vector<std::thread> pool;
+  for (std::size_t w = 0; w < workers; ++w)
+    pool.emplace_back([&, w] {
+      for (std::size_t q = n * w / workers; q < n * (w + 1) / workers; ++q) pred[q] = e.Predict(p, d, q);
+    });
+  for (auto& t : pool) t.join();
+  Eigen::Array3d mean = Eigen::Array3d::Zero();
+  for (const Eigen::Array3d& g : d.reference) mean += g.abs();
+  // The floor keeps reference values near zero from dominating (as the relative metric).
+  const Eigen::Array3d floor = (1e-3 * mean / double(std::max<std::size_t>(n, 1))).max(1e-300);
+  constexpr std::size_t kBands = std::size(kThetaHBandEdgesDeg) - 1;
+  std::vector<double> all;
+  std::vector<std::vector<double>> bands(kBands);
+  all.reserve(3 * n);
+  for (std::size_t q = 0; q < n; ++q) {
+    const Eigen::Vector3d h = (d.wi[q] + d.wo[q]).normalized();
+    const double theta_h = std::acos(std::clamp(h.z(), -1.0, 1.0)) * 180 / kPi;
+    std::size_t b = 0;
+    while (b + 1 < kBands && theta_h >= kThetaHBandEdgesDeg[b + 1]) ++b;
+    for (int c = 0; c < 3; ++c) {
+      const double g = d.reference[q][c];
+      const double rel = std::abs(pred[q][c] - g) / std::max(std::abs(g), floor[c]);
+      all.push_back(rel);
+      bands[b].push_back(rel);
+    }
+  }
+  res.relative_error = StatsOf(std::move(all));
+  res.relative_error_bands.clear();
+  for (std::size_t b = 0; b < kBands; ++b)
+    if (!bands[b].empty())
+      res.relative_error_bands.push_back({kThetaHBandEdgesDeg[b], kThetaHBandEdgesDeg[b + 1], StatsOf(std::move(bands[b]))});
 }
 
 // J^T J over all residual blocks (internal parameters).
@@ -899,8 +988,26 @@ Result Fit(const Model& model, const Dataset& data, const Options& o) {
   if (summary.termination_type == ceres::FAILURE)
     res.message = "the solver failed: " + summary.message;
   res.residuals = m;
-  res.chi2_reduced = m > n ? 2 * res.cost / static_cast<double>(m - n) : 0.0;
+  // Residual variance: chi^2 / dof with sigma weights; otherwise the scale
+  // of the unweighted residuals, which only the covariance uses.
+  const double residual_variance = m > n ? 2 * res.cost / static_cast<double>(m - n) : 0.0;
+  res.chi2_reduced = sigma ? residual_variance : std::numeric_limits<double>::quiet_NaN();
   res.rmse = Rmse(engine, full, u, o.num_threads);
+  RelativeErrors(engine, full, res.params, o.num_threads, res);
+  if (!o.instrument && !data.apertures.empty())
+    res.warnings.push_back("the data were measured through finite apertures (" + data.apertures +
+                           ", sidecar '" + data.sidecar +
+                           "'): a plain fit takes the aperture-averaged values for f_r and biases narrow lobes; "
+                           "fit through the instrument (brdfkit fit --instrument " + data.sidecar +
+                           ", or \"instrument\" in a scene's fit task)");
+  // Residuals more than twice the stated noise (chi^2 / dof > 4): the model
+  // does not describe the data, whatever the standard deviations say.
+  if (sigma && residual_variance > 4)
+    res.warnings.push_back("model mismatch: the residuals are " + FormatDouble(std::round(std::sqrt(residual_variance) * 10) / 10) +
+                           " times the noise the data state (reduced chi-square " +
+                           FormatDouble(std::round(residual_variance * 100) / 100) +
+                           "); the standard deviations, statistical given the model, understate how far it is from "
+                           "the material");
 
   // --- uncertainty ------------------------------------------------------------
   res.stddev.assign(n, std::numeric_limits<double>::quiet_NaN());
@@ -932,7 +1039,7 @@ Result Fit(const Model& model, const Dataset& data, const Options& o) {
           for (std::size_t k = 0; k < n; ++k) jd(k) = engine.log_mask()[k] ? res.params[k] : 1.0;
           Eigen::MatrixXd cp = jd.asDiagonal() * cu * jd.asDiagonal();
           // Without measured sigma the residual variance sets the scale.
-          if (!sigma) cp *= res.chi2_reduced;
+          if (!sigma) cp *= residual_variance;
           res.correlation.resize(n, n);
           for (std::size_t k = 0; k < n; ++k) res.stddev[k] = std::sqrt(std::max(0.0, cp(k, k)));
           for (std::size_t i = 0; i < n; ++i)

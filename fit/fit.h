@@ -27,7 +27,10 @@
 // With per-sample standard deviations sigma, each residual is divided by its
 // own standard deviation propagated through the metric (first order), so the
 // cost is chi^2 / 2 and the covariance needs no rescaling; without them the
-// covariance is scaled by the residual variance 2 cost / (m - n).
+// covariance is scaled by the residual variance 2 cost / (m - n). Either way
+// the standard deviations are statistical given the model: they say how well
+// the data determine the parameters of this model, not how far the model is
+// from the material (see Result::relative_error and Result::warnings).
 #pragma once
 
 #include <Eigen/Core>
@@ -73,13 +76,18 @@ struct Dataset {
   bool has_sigma = false;
   std::size_t missing = 0;  // samples dropped because a value was missing
   std::string source;       // file name, for messages
+  // Set when the data's sidecar (FILE.json) says they were measured through
+  // finite apertures: what they were, and the sidecar (usable as the
+  // instrument of an aperture-aware fit). A plain fit then warns.
+  std::string apertures, sidecar;
 };
 
 Dataset FromTable(const synth::BrdfTable& table, const std::string& source = "");
 // Bin centres of a MERL table (phi_h = 0); a cell missing in any channel or
 // whose centre puts a direction at the horizon is counted in `missing`.
 Dataset FromMerl(const MerlTable& table, const std::string& source = "");
-// Reads a MERL binary (by the MERL header) or a CSV table.
+// Reads a MERL binary (by the MERL header) or a CSV table, and the
+// apertures from a synthetic measurement's sidecar FILE.json.
 Dataset LoadDataset(const std::string& path);
 
 enum class LinearSolver { kDenseQr, kDenseNormalCholesky, kIterativeSchur, kCgnr };
@@ -127,6 +135,22 @@ struct TracePoint {
   double rmse = 0;     // root mean square of the metric's residuals
 };
 
+// Relative error of a fitted model against the data it was fitted to:
+// |f - g| / max(g, floor) per sample and channel, g the data, f the fitted
+// model (through the instrument when the fit used one), floor = 1e-3 x the
+// channel's mean of g (as the relative metric), over the samples used.
+struct ErrorStats {
+  std::size_t count = 0;  // sample-channel values
+  double median = 0, p95 = 0, max = 0;
+};
+// The same over a band of half-vector angles theta_h, [min, max) degrees.
+struct BandStats {
+  double theta_h_min_deg = 0, theta_h_max_deg = 0;
+  ErrorStats stats;
+};
+// Band edges of Result::relative_error_bands, degrees.
+inline constexpr double kThetaHBandEdgesDeg[] = {0, 2, 5, 10, 20, 40, 90};
+
 struct Result {
   Model model;
   Metric metric = Metric::kL2;
@@ -138,7 +162,14 @@ struct Result {
   std::string covariance_message;  // plain words when uncertainties are missing
   double cost = 0;
   double rmse = 0;           // of the chosen metric, unweighted, over the samples used
-  double chi2_reduced = 0;   // 2 cost / (m - n)
+  // 2 cost / (m - n) when the residuals are weighted by the data's sigma;
+  // NaN when the data carry none (no stated noise to compare with).
+  double chi2_reduced = 0;
+  ErrorStats relative_error;
+  std::vector<BandStats> relative_error_bands;  // non-empty bands of kThetaHBandEdgesDeg
+  // Things a user should know about the result: a model that does not
+  // describe the data (residuals far above the stated noise), and the like.
+  std::vector<std::string> warnings;
   std::size_t residuals = 0;
   std::size_t used = 0;      // samples used
   std::size_t dropped_angle = 0;  // samples beyond max theta

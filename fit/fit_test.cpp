@@ -4,6 +4,7 @@
 #include <ceres/gradient_checker.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -177,6 +178,73 @@ TEST(Fit, ReportedUncertaintyMatchesSpread) {
       EXPECT_NEAR(mean_sd(k) / spread, 1.0, 0.2) << "parameter " << k;
     }
   }
+}
+
+// The relative-error summary against an independent computation from the
+// fitted parameters; chi-square only with sigma, and a warning when the
+// residuals are far above the noise the data state (a single lobe fitted to
+// a two-lobe material).
+TEST(Fit, RelativeErrorsChiSquareAndModelMismatch) {
+  const Model truth_model = Model::Parse("lambert+ggx+ggx");
+  const std::vector<double> truth =
+      ParseParams(truth_model.Info(), "lambert.albedo=0.3,ggx.alpha=0.05,ggx.f0=0.5,ggx#2.alpha=0.4,ggx#2.f0=0.5");
+  const Model m = Model::Parse("lambert+ggx");
+  for (bool with_sigma : {false, true}) {
+    SCOPED_TRACE(with_sigma ? "sigma" : "no sigma");
+    Dataset d = Synthesise(truth_model, truth, 600, 5, 0.01, 1e-4);
+    d.has_sigma = with_sigma;
+    const Result r = Fit(m, d, Options{});
+    // Independent: evaluate the fitted model at every sample.
+    const auto b = m.Make<double>();
+    Eigen::Array3d mean = Eigen::Array3d::Zero();
+    for (const Sample& x : d.samples) mean += x.f.abs();
+    mean /= double(d.samples.size());
+    std::vector<double> rel, low_band;
+    for (const Sample& x : d.samples) {
+      const Eigen::Array3d f = b->Eval(r.params.data(), x.wi, x.wo);
+      const double th = std::acos((x.wi + x.wo).normalized().z()) * 180 / kPi;
+      for (int c = 0; c < 3; ++c) {
+        const double e = std::abs(f[c] - x.f[c]) / std::max(std::abs(x.f[c]), 1e-3 * mean[c]);
+        rel.push_back(e);
+        if (th < 2) low_band.push_back(e);
+      }
+    }
+    std::sort(rel.begin(), rel.end());
+    std::sort(low_band.begin(), low_band.end());
+    const auto quantile = [](const std::vector<double>& v, double q) {
+      const double pos = q * double(v.size() - 1);
+      const std::size_t i = std::size_t(pos);
+      return i + 1 < v.size() ? v[i] + (pos - double(i)) * (v[i + 1] - v[i]) : v.back();
+    };
+    EXPECT_EQ(r.relative_error.count, rel.size());
+    EXPECT_NEAR(r.relative_error.median, quantile(rel, 0.5), 1e-12);
+    EXPECT_NEAR(r.relative_error.p95, quantile(rel, 0.95), 1e-12);
+    EXPECT_NEAR(r.relative_error.max, rel.back(), 1e-12);
+    ASSERT_FALSE(r.relative_error_bands.empty());
+    EXPECT_EQ(r.relative_error_bands[0].theta_h_max_deg, 2.0);
+    EXPECT_EQ(r.relative_error_bands[0].stats.count, low_band.size());
+    EXPECT_NEAR(r.relative_error_bands[0].stats.median, quantile(low_band, 0.5), 1e-12);
+    std::size_t band_total = 0;
+    for (const BandStats& band : r.relative_error_bands) band_total += band.stats.count;
+    EXPECT_EQ(band_total, rel.size());
+    // One lobe cannot follow two: errors well above the 1 % noise.
+    EXPECT_GT(r.relative_error.p95, 0.05);
+    if (with_sigma) {
+      EXPECT_GT(r.chi2_reduced, 4);
+      ASSERT_EQ(r.warnings.size(), 1u);
+      EXPECT_NE(r.warnings[0].find("model mismatch"), std::string::npos) << r.warnings[0];
+    } else {
+      EXPECT_TRUE(std::isnan(r.chi2_reduced));
+      EXPECT_TRUE(r.warnings.empty());
+    }
+  }
+  // The right model on the same noisy data: chi-square near 1, no warning.
+  Dataset d = Synthesise(truth_model, truth, 600, 5, 0.01, 1e-4);
+  Options o;
+  o.initial = truth;
+  const Result good = Fit(truth_model, d, o);
+  EXPECT_NEAR(good.chi2_reduced, 1.0, 0.15);
+  EXPECT_TRUE(good.warnings.empty());
 }
 
 TEST(Fit, EveryResidualPassesGradientChecker) {

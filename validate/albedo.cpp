@@ -17,10 +17,13 @@
 
 #include <algorithm>
 #include <array>
+#include <cctype>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <functional>
+#include <limits>
 #include <memory>
 #include <sstream>
 
@@ -469,7 +472,9 @@ AlbedoTable BuildAlbedoTable(const Model& model, const std::vector<double>& base
       if (other >= 0) SetParam(info, t.params[other], t.params[other].nodes[j], f1_params[j]);
     }
     t.E1.assign(n_mu * n_other, 0.0);
+    t.E1_error.assign(t.E1.size(), 0.0);
     t.E1_avg.assign(n_other, 0.0);
+    t.E1_avg_error.assign(n_other, 0.0);
   }
   std::vector<LobeShape> shapes(n_points), f1_shapes(f1_params.size());
   for (std::size_t i = 0; i < n_points; ++i) shapes[i] = EstimateLobeShape(*bxdf, point_params[i].data());
@@ -477,7 +482,6 @@ AlbedoTable BuildAlbedoTable(const Model& model, const std::vector<double>& base
 
   // Tasks: averages first (each costs dozens of cells), then the cells.
   std::vector<double> limit_err(n_points + f1_params.size(), 0.0);
-  std::vector<double> f1_err(t.E1.size() + t.E1_avg.size(), 0.0);
   const std::size_t n_tasks = n_points + f1_params.size() + t.E.size() + t.E1.size();
   std::atomic<std::size_t> tasks_done{0};
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n_tasks, 1), [&](const tbb::blocked_range<std::size_t>& r) {
@@ -494,7 +498,7 @@ AlbedoTable BuildAlbedoTable(const Model& model, const std::vector<double>& base
       if (k < f1_params.size()) {
         const AlbedoValue a = AverageAlbedo(*bxdf, f1_params[k].data(), f1_shapes[k], req.quadrature);
         t.E1_avg[k] = a.value[ch];
-        f1_err[t.E1.size() + k] = a.error[ch];
+        t.E1_avg_error[k] = a.error[ch];
         continue;
       }
       k -= f1_params.size();
@@ -506,7 +510,7 @@ AlbedoTable BuildAlbedoTable(const Model& model, const std::vector<double>& base
       const AlbedoValue a = AlbedoAtMu(*bxdf, pp, t.mu.nodes[i_mu], shape, req.quadrature);
       if (f1) {
         t.E1[k] = a.value[ch];
-        f1_err[k] = a.error[ch];
+        t.E1_error[k] = a.error[ch];
       } else {
         t.E[k] = a.value[ch];
         t.E_error[k] = a.error[ch];
@@ -521,8 +525,11 @@ AlbedoTable BuildAlbedoTable(const Model& model, const std::vector<double>& base
   });
 
   t.ms_norm.resize(n_points);
-  for (std::size_t i = 0; i < n_points; ++i)
-    t.ms_norm[i] = t.E_avg[i] < 1 ? 1.0 / (kPi * (1.0 - t.E_avg[i])) : std::numeric_limits<double>::infinity();
+  for (std::size_t i = 0; i < n_points; ++i) {
+    // E_avg >= 1: nothing is lost and the compensation lobe is zero (its
+    // normalisation has no finite value there).
+    t.ms_norm[i] = t.E_avg[i] < 1 ? 1.0 / (kPi * (1.0 - t.E_avg[i])) : 0.0;
+  }
   if (t.f0_axis >= 0) {
     const Axis& fa = t.params[t.f0_axis];
     // Schlick: 2 int_0^1 (f0 + (1 - f0)(1 - mu)^5) mu dmu = f0 + (1 - f0) / 21.
@@ -537,10 +544,63 @@ AlbedoTable BuildAlbedoTable(const Model& model, const std::vector<double>& base
   }
   for (double e : t.E_error) t.max_error = std::max(t.max_error, e);
   for (double e : t.E_avg_error) t.max_error = std::max(t.max_error, e);
-  for (double e : f1_err) t.max_error = std::max(t.max_error, e);
+  for (double e : t.E1_error) t.max_error = std::max(t.max_error, e);
+  for (double e : t.E1_avg_error) t.max_error = std::max(t.max_error, e);
   for (double e : limit_err) t.limit_error = std::max(t.limit_error, e);
   t.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start).count();
   return t;
+}
+
+std::vector<AlbedoMiss> EntriesAboveTolerance(const AlbedoTable& t, double tolerance) {
+  std::vector<AlbedoMiss> out;
+  const std::size_t n2 = t.n2();
+  // Axis values of parameter point i1 * n2 + i2.
+  const auto point = [&](std::size_t k) {
+    std::vector<std::pair<std::string, double>> v{{t.params[0].name, t.params[0].nodes[k / n2]}};
+    if (t.params.size() > 1) v.emplace_back(t.params[1].name, t.params[1].nodes[k % n2]);
+    return v;
+  };
+  // The F = 1 tables run over the axis other than f0 (one entry without one).
+  const auto other_point = [&](std::size_t j) {
+    std::vector<std::pair<std::string, double>> v{{"f0", 1.0}};
+    if (t.params.size() > 1) {
+      const Axis& other = t.params[1 - t.f0_axis];
+      v.emplace_back(other.name, other.nodes[j]);
+    }
+    return v;
+  };
+  const auto add = [&](const char* table, double error, double mu, std::vector<std::pair<std::string, double>> at) {
+    // A NaN estimate is a miss too.
+    if (!(error <= tolerance)) out.push_back({table, mu, std::move(at), error});
+  };
+  for (std::size_t k = 0; k < t.E_error.size(); ++k)
+    add("E", t.E_error[k], t.mu.nodes[k % t.n_mu()], point(k / t.n_mu()));
+  for (std::size_t k = 0; k < t.E_avg_error.size(); ++k) add("E_avg", t.E_avg_error[k], -1, point(k));
+  for (std::size_t k = 0; k < t.E1_error.size(); ++k)
+    add("E1", t.E1_error[k], t.mu.nodes[k % t.n_mu()], other_point(k / t.n_mu()));
+  for (std::size_t k = 0; k < t.E1_avg_error.size(); ++k) add("E1_avg", t.E1_avg_error[k], -1, other_point(k));
+  return out;
+}
+
+std::string DescribeMisses(const std::vector<AlbedoMiss>& misses, double tolerance, std::size_t shown) {
+  std::ostringstream s;
+  s << misses.size() << " table entr" << (misses.size() == 1 ? "y misses" : "ies miss")
+    << " the error tolerance " << FormatDouble(tolerance) << ":";
+  std::vector<const AlbedoMiss*> worst;
+  for (const AlbedoMiss& m : misses) worst.push_back(&m);
+  std::sort(worst.begin(), worst.end(), [](const AlbedoMiss* a, const AlbedoMiss* b) { return a->error > b->error; });
+  for (std::size_t i = 0; i < std::min(shown, worst.size()); ++i) {
+    const AlbedoMiss& m = *worst[i];
+    char err[32];
+    std::snprintf(err, sizeof err, "%.3g", m.error);
+    s << "\n  " << m.table << " at ";
+    if (m.mu >= 0) s << "mu = " << FormatDouble(m.mu) << ", ";
+    for (std::size_t k = 0; k < m.at.size(); ++k)
+      s << (k ? ", " : "") << m.at[k].first << " = " << FormatDouble(m.at[k].second);
+    s << ": error estimate " << err;
+  }
+  if (worst.size() > shown) s << "\n  ... and " << worst.size() - shown << " more";
+  return s.str();
 }
 
 // --- writers ---------------------------------------------------------------
@@ -670,47 +730,94 @@ void WriteAlbedoExr(const AlbedoTable& t, const std::string& path) {
   file.Commit();
 }
 
+namespace {
+
+// A C float literal that reads back to float(v): "0.0f", "1.0f", "0.123456789f",
+// "1e-07f". Values below the smallest normal float are written as 0 (a
+// subnormal literal is diagnosed by some compilers); non-finite values have
+// no literal and are refused.
+std::string FloatLiteral(double v, const std::string& what) {
+  if (!std::isfinite(v) || std::abs(v) > double(std::numeric_limits<float>::max()))
+    throw ModelError("albedo header: " + what + " = " + FormatDouble(v) + " has no float literal");
+  if (std::abs(v) < double(std::numeric_limits<float>::min())) return "0.0f";
+  char buf[40];
+  std::snprintf(buf, sizeof buf, "%.9g", v);
+  std::string out = buf;
+  if (out.find_first_of(".e") == std::string::npos) out += ".0";
+  return out + "f";
+}
+
+}  // namespace
+
 void WriteAlbedoHeader(const AlbedoTable& t, const std::string& path, const std::string& prefix) {
+  std::string upper;
+  for (char c : prefix) upper += static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
   std::ostringstream s;
-  const auto array = [&](const std::string& name, const std::vector<double>& v, const std::string& dims,
+  // An array with its initializer braced per dimension (C's -Wmissing-braces):
+  // dims lists the extents, the last running fastest.
+  const auto array = [&](const std::string& name, const std::vector<double>& v, const std::vector<std::size_t>& dims,
                          const std::string& comment) {
-    s << "// " << comment << "\n";
-    s << "static const float " << prefix << "_" << name << dims << " = {";
-    for (std::size_t i = 0; i < v.size(); ++i) {
-      if (i % 8 == 0) s << "\n   ";
-      char buf[32];
-      std::snprintf(buf, sizeof buf, " %.9gf,", v[i]);
-      s << buf;
-    }
-    s << "\n};\n\n";
+    s << "/* " << comment << " */\n";
+    s << "static const float " << prefix << "_" << name;
+    for (std::size_t d : dims) s << "[" << d << "]";
+    s << " " << upper << "_UNUSED = ";
+    std::size_t next = 0;
+    const std::function<void(std::size_t, int)> block = [&](std::size_t level, int indent) {
+      const std::string pad(std::size_t(indent), ' ');
+      s << "{";
+      if (level + 1 == dims.size()) {
+        for (std::size_t i = 0; i < dims[level]; ++i, ++next) {
+          if (i % 8 == 0) s << "\n" << pad << "  ";
+          s << (i % 8 ? " " : "") << FloatLiteral(v[next], name + "[" + std::to_string(next) + "]")
+            << (i + 1 < dims[level] ? "," : "");
+        }
+      } else {
+        for (std::size_t i = 0; i < dims[level]; ++i) {
+          s << "\n" << pad << "  ";
+          block(level + 1, indent + 2);
+          if (i + 1 < dims[level]) s << ",";
+        }
+      }
+      s << "\n" << pad << "}";
+    };
+    block(0, 0);
+    s << ";\n\n";
   };
   const bool two = t.params.size() > 1;
-  const std::string dims_p = "[" + std::to_string(t.n1()) + "]" + (two ? "[" + std::to_string(t.n2()) + "]" : "");
-  s << "// Directional albedo tables generated by brdfkit albedo.\n"
-    << "// model: " << t.model << "\n"
-    << "// axes: " << AxesText(t) << " (mu = cos(theta_o); mu runs fastest)\n"
-    << "// E at mu = 0 holds the limit mu -> 0. Compensation lobe (Kulla & Conty 2017):\n"
-    << "//   f_ms(wi, wo) = (1 - E(mu_i)) (1 - E(mu_o)) * ms_norm, ms_norm = 1 / (pi (1 - E_avg)).\n"
-    << "#pragma once\n\n";
+  std::vector<std::size_t> dims_p = {t.n1()};
+  if (two) dims_p.push_back(t.n2());
+  std::vector<std::size_t> dims_e = dims_p;
+  dims_e.push_back(t.n_mu());
+  const std::string guard = upper + "_H";
+  s << "/* Directional albedo tables generated by brdfkit albedo.\n"
+    << " * model: " << t.model << "\n"
+    << " * params: " << t.params_text << "\n"
+    << " * axes: " << AxesText(t) << " (mu = cos(theta_o); mu runs fastest)\n"
+    << " * E at mu = 0 holds the limit mu -> 0. Compensation lobe (Kulla & Conty 2017):\n"
+    << " *   f_ms(wi, wo) = (1 - E(mu_i)) (1 - E(mu_o)) * ms_norm, ms_norm = 1 / (pi (1 - E_avg)),\n"
+    << " *   and ms_norm = 0 where E_avg >= 1 (nothing is lost, the compensation lobe vanishes).\n"
+    << " * Valid C89 and C++: float arrays and node arrays, all finite. */\n"
+    << "#ifndef " << guard << "\n#define " << guard << "\n\n"
+    << "#if defined(__GNUC__) || defined(__clang__)\n#define " << upper << "_UNUSED __attribute__((unused))\n"
+    << "#else\n#define " << upper << "_UNUSED\n#endif\n\n";
   s << "enum { " << prefix << "_n_mu = " << t.n_mu();
   for (const Axis& a : t.params) s << ", " << prefix << "_n_" << a.name << " = " << a.nodes.size();
   s << " };\n\n";
-  array("mu_nodes", t.mu.nodes, "[" + std::to_string(t.n_mu()) + "]", "mu node values");
+  array("mu_nodes", t.mu.nodes, {t.n_mu()}, "mu node values");
   for (const Axis& a : t.params)
-    array(a.name + "_nodes", a.nodes, "[" + std::to_string(a.nodes.size()) + "]",
+    array(a.name + "_nodes", a.nodes, {a.nodes.size()},
           a.name + " node values" + (a.sqrt_spacing ? " (spaced in sqrt(" + a.name + "))" : ""));
-  array("E", t.E, dims_p + "[" + std::to_string(t.n_mu()) + "]", "E[" + t.params[0].name + "]" +
-        (two ? "[" + t.params[1].name + "]" : "") + "[mu]");
+  array("E", t.E, dims_e, "E[" + t.params[0].name + "]" + (two ? "[" + t.params[1].name + "]" : "") + "[mu]");
   array("E_avg", t.E_avg, dims_p, "E_avg = 2 int_0^1 E(mu) mu dmu");
-  array("ms_norm", t.ms_norm, dims_p, "1 / (pi (1 - E_avg))");
+  array("ms_norm", t.ms_norm, dims_p, "1 / (pi (1 - E_avg)); 0 where E_avg >= 1");
   if (t.f0_axis >= 0) {
     const std::size_t n_other = t.E1_avg.size();
-    array("F_avg", t.F_avg, "[" + std::to_string(t.F_avg.size()) + "]", "Schlick F_avg = f0 + (1 - f0) / 21");
-    array("E1", t.E1, "[" + std::to_string(n_other) + "][" + std::to_string(t.n_mu()) + "]",
-          "E with F = 1 (f0 = 1), for f_ms");
-    array("E1_avg", t.E1_avg, "[" + std::to_string(n_other) + "]", "E_avg with F = 1");
+    array("F_avg", t.F_avg, {t.F_avg.size()}, "Schlick F_avg = f0 + (1 - f0) / 21");
+    array("E1", t.E1, {n_other, t.n_mu()}, "E with F = 1 (f0 = 1), for f_ms");
+    array("E1_avg", t.E1_avg, {n_other}, "E_avg with F = 1");
     array("F_ms", t.F_ms, dims_p, "F_avg^2 E1_avg / (1 - F_avg (1 - E1_avg)), multiplies f_ms");
   }
+  s << "#undef " << upper << "_UNUSED\n\n#endif /* " << guard << " */\n";
   WriteFileAtomic(path, s.str());
 }
 

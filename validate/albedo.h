@@ -27,6 +27,7 @@
 #include <cstdint>
 #include <functional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "brdf/model.h"
@@ -129,7 +130,8 @@ struct AlbedoTable {
   std::vector<double> E, E_error;
   // E_avg[i1 * n2 + i2].
   std::vector<double> E_avg, E_avg_error;
-  // Compensation normalisation 1 / (pi (1 - E_avg)) (infinite where E_avg = 1).
+  // Compensation normalisation 1 / (pi (1 - E_avg)); 0 where E_avg >= 1 (no
+  // energy is lost there and the compensation lobe vanishes).
   std::vector<double> ms_norm;
   // With an f0 axis: F_avg (per f0 node), the F = 1 tables
   // E1[i_other * n_mu + i_mu] and E1_avg[i_other] over the other parameter axis
@@ -137,6 +139,7 @@ struct AlbedoTable {
   // F_ms[i1 * n2 + i2] = F_avg^2 E1_avg / (1 - F_avg (1 - E1_avg)).
   int f0_axis = -1;  // index into params, or -1
   std::vector<double> F_avg, E1, E1_avg, F_ms;
+  std::vector<double> E1_error, E1_avg_error;  // error estimates of E1 and E1_avg
   double max_error = 0;    // largest quadrature error estimate over all entries
   double limit_error = 0;  // largest |E(kGrazingMu) - E(10 kGrazingMu)| over the mu = 0 entries
   double seconds = 0;
@@ -156,6 +159,19 @@ struct AlbedoTable {
 AlbedoTable BuildAlbedoTable(const Model& model, const std::vector<double>& base_params,
                              const AlbedoTableRequest& request);
 
+// The accuracy contract: every entry's error estimate is at most the
+// request's tolerance. An entry that misses it (E, E_avg, or the F = 1
+// tables E1, E1_avg), with where it is.
+struct AlbedoMiss {
+  std::string table;  // "E", "E_avg", "E1" or "E1_avg"
+  double mu = -1;     // the mu node, or -1 for averages
+  std::vector<std::pair<std::string, double>> at;  // parameter axis values
+  double error = 0;
+};
+std::vector<AlbedoMiss> EntriesAboveTolerance(const AlbedoTable& table, double tolerance);
+// "N table entries miss the error tolerance T:" and the `shown` worst, one a line.
+std::string DescribeMisses(const std::vector<AlbedoMiss>& misses, double tolerance, std::size_t shown = 8);
+
 // Writers (atomic: a failure leaves no file behind).
 // CSV: "mu,<p1>[,<p2>],E" and beside it <stem>_avg.csv "<p1>[,<p2>],E_avg".
 void WriteAlbedoCsv(const AlbedoTable& table, const std::string& path);
@@ -164,7 +180,8 @@ std::string AverageCsvPath(const std::string& path);
 // "E_avg" (width n2, height n1), float32 channel "E"; header attributes
 // brdfkit.model, brdfkit.params, brdfkit.axes and brdfkit.nodes.<axis>.
 void WriteAlbedoExr(const AlbedoTable& table, const std::string& path);
-// C header with float arrays and node arrays.
+// C header (C89 and C++, include guard) with float arrays and node arrays;
+// every value is finite. Throws ModelError for a value with no float literal.
 void WriteAlbedoHeader(const AlbedoTable& table, const std::string& path, const std::string& symbol_prefix);
 
 // --- energy compensation -------------------------------------------------
@@ -198,6 +215,7 @@ class CompensatedBxdf final : public Bxdf<double> {
     return base_.Pdf(p, wo, wi);
   }
   double SampleWeight(const double* p) const override { return base_.SampleWeight(p); }
+  bool CanSample() const override { return base_.CanSample(); }
 
  private:
   const Bxdf<double>& base_;

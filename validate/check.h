@@ -6,12 +6,16 @@
 //    max_c max(f_c(wi, wo), f_c(wo, wi)) <= 1e-9. Pairs: normal against
 //    every elevation, grazing (1e-6 rad from the horizon) against all, mirror,
 //    near-retro-reflection, wi = wo, and uniformly random pairs.
-//  - energy conservation: max over wo and channels of E(wo) <= 1 + error + 1e-6,
+//  - energy conservation: max over wo and channels of E(wo) <= 1 + 1e-6:
+//    passes when every E's error bar lies below, fails when one lies wholly
+//    above, and is inconclusive when a bar straddles the bound after that
+//    E was integrated again with tighten_factor times the budget;
 //    E by the adaptive half-vector cubature of validate/integrators.h, searched
 //    over mu from 1 down to 1e-7 (grazing) with golden-section refinement, and
 //    over phi_o in [0, pi) for models that are not rotation invariant.
 //  - values: every f_r evaluated is finite and >= 0.
-//  - sampling: the pdf integrates to the fraction of valid samples (within
+//  - sampling (only for models that sample; skipped with a note otherwise):
+//    the pdf integrates to the fraction of valid samples (within
 //    5 standard errors + 2e-3, quadrature of narrow lobes) and not above 1 +
 //    2e-3; chi-square goodness of fit at wo = 0, 30, 60, 80 degrees (and a
 //    rotated azimuth for anisotropic models), Sidak-corrected family p-value
@@ -45,6 +49,8 @@ struct CheckOptions {
   double significance = 0.01;  // family-wise, for the chi-square tests
   int golden_steps = 12;       // refinement of the albedo maximum in mu
   std::int64_t albedo_budget = 400000;  // evaluations per directional albedo (adaptive)
+  int tighten_factor = 16;  // budget factor for albedos whose error bar straddles 1
+  int tighten_points = 8;   // at most this many of them, the highest bars first
 };
 
 struct CheckResult {
@@ -62,6 +68,7 @@ struct CheckResult {
   double albedo_at_normal = 0;
   bool rotation_invariant = true;
   int albedo_evaluations = 0;
+  int albedo_tightened = 0;  // albedos integrated again with the larger budget
   // Values.
   double min_value = 0;
   std::int64_t nonfinite_count = 0;
@@ -80,9 +87,12 @@ struct CheckResult {
   double d_normalisation = 0, d_normalisation_error = 0;
   bool has_smith_g1 = false;
   double furnace_min = 0, furnace_max = 0, furnace_error = 0;
-  // Verdict.
+  // Verdict: plausible when every property passes; implausible when one
+  // fails; otherwise inconclusive (an error bar too wide to decide).
   bool plausible = true;
-  std::vector<std::string> reasons;  // one per failed property, each starting with its name
+  std::vector<std::string> reasons;       // one per failed property, each starting with its name
+  std::vector<std::string> inconclusive;  // one per undecided property, with why
+  const char* Verdict() const { return !reasons.empty() ? "implausible" : (inconclusive.empty() ? "plausible" : "inconclusive"); }
   double seconds = 0;
 };
 

@@ -46,6 +46,7 @@ class Broken final : public Bxdf<double> {
     return base_->Pdf(p, wo, wi);
   }
   double SampleWeight(const double* p) const override { return base_->SampleWeight(p); }
+  bool CanSample() const override { return base_->CanSample(); }
 
  private:
   std::unique_ptr<Bxdf<double>> base_;
@@ -146,6 +147,70 @@ TEST(Check, DetectsEachBrokenProperty) {
     EXPECT_TRUE(HasReason(r, "values"));
     EXPECT_LT(r.min_value, 0);
   }
+}
+
+// An error bar that straddles 1 is neither a pass nor a fail. GGX alpha = 1
+// (F = 1) has E(mu) = 1 - mu ln(1 + 1/mu) < 1, rising to 1 at grazing: with
+// a starved budget its error estimates reach past 1 and, without the budget
+// to tighten them, the verdict is inconclusive; with room to tighten, or the
+// default budget, it is plausible.
+TEST(Check, ErrorBarAcrossOneIsInconclusiveUntilTightened) {
+  CheckOptions o;
+  o.sampling = false;
+  o.albedo_budget = 60;
+  o.tighten_factor = 1;
+  const CheckResult starved = Check("ggx", "alpha=1", o);
+  EXPECT_TRUE(starved.reasons.empty());
+  ASSERT_EQ(starved.inconclusive.size(), 1u);
+  EXPECT_EQ(starved.inconclusive[0].rfind("energy:", 0), 0u) << starved.inconclusive[0];
+  EXPECT_FALSE(starved.plausible);
+  EXPECT_STREQ(starved.Verdict(), "inconclusive");
+  o.tighten_factor = 20000;
+  o.tighten_points = 100;
+  const CheckResult tightened = Check("ggx", "alpha=1", o);
+  EXPECT_GT(tightened.albedo_tightened, 0);
+  EXPECT_TRUE(tightened.inconclusive.empty()) << tightened.inconclusive[0];
+  EXPECT_STREQ(tightened.Verdict(), "plausible");
+  EXPECT_LE(tightened.albedo_max + tightened.albedo_max_error, 1 + 1e-6);
+  EXPECT_STREQ(Check("ggx", "alpha=1").Verdict(), "plausible");
+  EXPECT_STREQ(Check("phong_original", "ks=1,n=1").Verdict(), "implausible");
+}
+
+// A model with Eval alone (no Sample/Pdf) is checked for everything but
+// sampling, which is skipped with a note.
+struct EvalOnlyLobe {
+  explicit EvalOnlyLobe(const Settings& = {}) {}
+  static ModelInfo Info() {
+    ModelInfo info;
+    info.name = "eval_only";
+    info.params = {{"albedo", 0.0, 1.0, 0.5, true, "albedo"}};
+    return info;
+  }
+  template <typename T>
+  Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const {
+    if (!SameUpperHemisphere(wi, wo)) return Rgb<T>::Constant(T(0));
+    return Rgb<T>(p[0], p[1], p[2]) * T(kInvPi);
+  }
+};
+
+TEST(Check, ModelWithoutSamplingIsCheckedWithoutIt) {
+  const detail::ModelAdapter<EvalOnlyLobe, double> b(std::make_shared<const EvalOnlyLobe>(), EvalOnlyLobe::Info());
+  EXPECT_FALSE(b.CanSample());
+  const std::vector<double> p = {0.9, 0.6, 0.3};
+  const Vec3<double> wo(0, 0, 1);
+  EXPECT_FALSE(b.Sample(p.data(), wo, 0.3, 0.7).valid);
+  EXPECT_EQ(b.Pdf(p.data(), wo, wo), 0.0);
+  const CheckResult r = CheckPlausibility(b, p.data());
+  EXPECT_TRUE(r.plausible) << (r.reasons.empty() ? "" : r.reasons[0]);
+  EXPECT_FALSE(r.sampling_checked);
+  EXPECT_NE(r.sampling_note.find("no Sample/Pdf"), std::string::npos) << r.sampling_note;
+  EXPECT_NEAR(r.albedo_max, 0.9, 1e-9);
+  // The same lobe with a wrong normalisation still fails energy.
+  const std::vector<double> bright = {1, 1, 1};
+  const Broken scaled(std::make_unique<detail::ModelAdapter<EvalOnlyLobe, double>>(
+                          std::make_shared<const EvalOnlyLobe>(), EvalOnlyLobe::Info()),
+                      Broken::Fault::kScale);
+  EXPECT_TRUE(HasReason(CheckPlausibility(scaled, bright.data()), "energy"));
 }
 
 TEST(Sweep, GridIncludesBoundsAndIsLogSpacedForLogParameters) {

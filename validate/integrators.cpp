@@ -894,7 +894,9 @@ Estimate DirectionalAlbedo(const Bxdf<double>& bxdf, const double* params, const
     if (!(wi.z() > 0)) return Array3d::Zero();
     return bxdf.Eval(params, wi, wo) * wi.z();
   };
-  pb.sample = [&bxdf, params, wo](double u1, double u2) {
+  // A model without its own sampling is importance-sampled by the default
+  // sampler (cosine, or a lobe mixture about the mirror direction).
+  if (bxdf.CanSample()) pb.sample = [&bxdf, params, wo](double u1, double u2) {
     const BsdfSample<double> s = bxdf.Sample(params, wo, u1, u2);
     DirSample d;
     d.wi = s.wi;

@@ -245,10 +245,10 @@ void Sweep(const Model& model, const std::vector<Point>& points, const std::vect
             if (std::isfinite(a) && std::isfinite(r))
               row.reciprocity_max_rel_error = std::max(row.reciprocity_max_rel_error, RelDiff(a, r, kStressValueFloor));
           }
-    // Sampling and pdf at every wo.
+    // Sampling and pdf at every wo (models that sample).
     if constexpr (!std::is_same_v<T, Jet>) {
       const double tol = std::is_same_v<T, float> ? 1e-4 : 1e-10;
-      for (std::size_t o = 0; o < m; ++o) {
+      for (std::size_t o = 0; o < m && b->CanSample(); ++o) {
         for (double u1 : {0.0, 1e-12, 0.5, 1.0 - 1e-16})
           for (double u2 : {0.0, 0.5, 1.0 - 1e-16}) {
             const BsdfSample<T> s = b->Sample(p.data(), dt[o], u1, u2);
