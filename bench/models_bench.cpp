@@ -1,5 +1,5 @@
 // Evaluations per second of every registered model, single thread, double
-// and float. Lambert, the cheapest model, runs in the same process as the
+// and float, per call (Eval) and in batches (EvalBatch). Lambert, the cheapest model, runs in the same process as the
 // baseline: RESULTS.md reports each model's cost as a ratio to it.
 #include <benchmark/benchmark.h>
 
@@ -36,6 +36,34 @@ void EvalModel(benchmark::State& state, const std::string& name) {
   state.SetItemsProcessed(state.iterations());
 }
 
+// The same pairs through Bxdf<T>::EvalBatch (brdf/batch.h): one virtual
+// call per batch of kDirs pairs, the model's Eval inlined in the loop.
+template <typename T>
+void EvalModelBatch(benchmark::State& state, const std::string& name) {
+  const Model model = Model::Parse(name);
+  const auto b = model.Make<T>();
+  const std::vector<double> pd = model.Info().Defaults();
+  const std::vector<T> p(pd.begin(), pd.end());
+  std::mt19937_64 rng(1);
+  std::uniform_real_distribution<double> u(0, 1);
+  constexpr int kDirs = 1024;
+  std::vector<T> wi(3 * kDirs), wo(3 * kDirs), out(3 * kDirs);
+  for (int k = 0; k < kDirs; ++k) {
+    for (T* w : {&wi[3 * k], &wo[3 * k]}) {
+      const double z = 0.02 + 0.98 * u(rng), phi = 2 * kPi * u(rng), s = std::sqrt(1 - z * z);
+      w[0] = T(s * std::cos(phi));
+      w[1] = T(s * std::sin(phi));
+      w[2] = T(z);
+    }
+  }
+  for (auto _ : state) {
+    b->EvalBatch(p.data(), wi.data(), 3, wo.data(), 3, kDirs, out.data());
+    benchmark::DoNotOptimize(out.data());
+    benchmark::ClobberMemory();
+  }
+  state.SetItemsProcessed(state.iterations() * kDirs);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -45,6 +73,10 @@ int main(int argc, char** argv) {
                                  [name = info.name](benchmark::State& s) { EvalModel<double>(s, name); });
     benchmark::RegisterBenchmark(("Eval<float>/" + info.name).c_str(),
                                  [name = info.name](benchmark::State& s) { EvalModel<float>(s, name); });
+    benchmark::RegisterBenchmark(("EvalBatch<double>/" + info.name).c_str(),
+                                 [name = info.name](benchmark::State& s) { EvalModelBatch<double>(s, name); });
+    benchmark::RegisterBenchmark(("EvalBatch<float>/" + info.name).c_str(),
+                                 [name = info.name](benchmark::State& s) { EvalModelBatch<float>(s, name); });
   }
   benchmark::Initialize(&argc, argv);
   benchmark::RunSpecifiedBenchmarks();

@@ -15,6 +15,7 @@
 // and is listed once in registry.h.
 #pragma once
 
+#include "brdf/batch.h"
 #include "brdf/core.h"
 #include "brdf/registry.h"
 
@@ -63,6 +64,10 @@ class ModelAdapter final : public Bxdf<T> {
     for (std::size_t k = 0; k < n; ++k) sum += m_->template Eval<T>(p, wi, wo[k]) * T(w[k]);
     return sum;
   }
+  void EvalBatch(const T* p, const T* wi, std::size_t wi_stride, const T* wo, std::size_t wo_stride, std::size_t n,
+                 T* out) const override {
+    brdfkit::EvalBatch(*m_, p, wi, wi_stride, wo, wo_stride, n, out);
+  }
   BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const override {
     return m_->template Sample<T>(p, wo, u1, u2);
   }
@@ -101,6 +106,23 @@ class SumBxdf final : public Bxdf<T> {
     Rgb<T> f = Rgb<T>::Constant(T(0));
     for (std::size_t k = 0; k < lobes_.size(); ++k) f += lobes_[k]->EvalSum(p + offsets_[k], wi, wo, w, n);
     return f;
+  }
+  // Lobe by lobe over chunks small enough to stay in cache.
+  void EvalBatch(const T* p, const T* wi, std::size_t wi_stride, const T* wo, std::size_t wo_stride, std::size_t n,
+                 T* out) const override {
+    constexpr std::size_t kChunk = 256;
+    T part[3 * kChunk];
+    for (std::size_t start = 0; start < n; start += kChunk) {
+      const std::size_t m = std::min(kChunk, n - start);
+      const T* a = wi + start * wi_stride;
+      const T* b = wo + start * wo_stride;
+      T* o = out + 3 * start;
+      lobes_[0]->EvalBatch(p + offsets_[0], a, wi_stride, b, wo_stride, m, o);
+      for (std::size_t k = 1; k < lobes_.size(); ++k) {
+        lobes_[k]->EvalBatch(p + offsets_[k], a, wi_stride, b, wo_stride, m, part);
+        for (std::size_t i = 0; i < 3 * m; ++i) o[i] += part[i];
+      }
+    }
   }
   BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const override {
     const std::vector<double> w = Weights(p);
