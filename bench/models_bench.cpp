@@ -12,22 +12,31 @@ namespace {
 
 using namespace brdfkit;
 
+constexpr int kDirs = 1024;
+
+// kDirs random pairs of unit directions above the horizon.
 template <typename T>
-void EvalModel(benchmark::State& state, const std::string& name) {
-  const Model model = Model::Parse(name);
-  const auto b = model.Make<T>();
-  const std::vector<double> pd = model.Info().Defaults();
-  const std::vector<T> p(pd.begin(), pd.end());
+void RandomPairs(std::vector<Vec3<T>>& wi, std::vector<Vec3<T>>& wo) {
   std::mt19937_64 rng(1);
   std::uniform_real_distribution<double> u(0, 1);
-  constexpr int kDirs = 1024;
-  std::vector<Vec3<T>> wi(kDirs), wo(kDirs);
+  wi.resize(kDirs);
+  wo.resize(kDirs);
   for (int k = 0; k < kDirs; ++k) {
     for (auto* w : {&wi[k], &wo[k]}) {
       const double z = 0.02 + 0.98 * u(rng), phi = 2 * kPi * u(rng), s = std::sqrt(1 - z * z);
       *w = Vec3<T>(T(s * std::cos(phi)), T(s * std::sin(phi)), T(z));
     }
   }
+}
+
+template <typename T>
+void EvalModel(benchmark::State& state, const std::string& name) {
+  const Model model = Model::Parse(name);
+  const auto b = model.Make<T>();
+  const std::vector<double> pd = model.Info().Defaults();
+  const std::vector<T> p(pd.begin(), pd.end());
+  std::vector<Vec3<T>> wi, wo;
+  RandomPairs(wi, wo);
   int k = 0;
   for (auto _ : state) {
     benchmark::DoNotOptimize(b->Eval(p.data(), wi[k], wo[k]));
@@ -44,20 +53,12 @@ void EvalModelBatch(benchmark::State& state, const std::string& name) {
   const auto b = model.Make<T>();
   const std::vector<double> pd = model.Info().Defaults();
   const std::vector<T> p(pd.begin(), pd.end());
-  std::mt19937_64 rng(1);
-  std::uniform_real_distribution<double> u(0, 1);
-  constexpr int kDirs = 1024;
-  std::vector<T> wi(3 * kDirs), wo(3 * kDirs), out(3 * kDirs);
-  for (int k = 0; k < kDirs; ++k) {
-    for (T* w : {&wi[3 * k], &wo[3 * k]}) {
-      const double z = 0.02 + 0.98 * u(rng), phi = 2 * kPi * u(rng), s = std::sqrt(1 - z * z);
-      w[0] = T(s * std::cos(phi));
-      w[1] = T(s * std::sin(phi));
-      w[2] = T(z);
-    }
-  }
+  std::vector<Vec3<T>> wi, wo;
+  RandomPairs(wi, wo);
+  std::vector<T> out(3 * kDirs);
+  // Vec3<T> is three packed scalars: the rows of an (n, 3) array.
   for (auto _ : state) {
-    b->EvalBatch(p.data(), wi.data(), 3, wo.data(), 3, kDirs, out.data());
+    b->EvalBatch(p.data(), wi[0].data(), 3, wo[0].data(), 3, kDirs, out.data());
     benchmark::DoNotOptimize(out.data());
     benchmark::ClobberMemory();
   }
