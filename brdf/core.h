@@ -257,6 +257,18 @@ class Bxdf {
     for (std::size_t k = 0; k < n; ++k) sum += Eval(p, wi, wo[k]) * T(w[k]);
     return sum;
   }
+  // f_r of n pairs, rows wi + k * wi_stride and wo + k * wo_stride (x, y, z;
+  // stride 0 repeats one direction), into out[3 k + c]: one virtual call for
+  // the whole batch (adapters run the loop of brdf/batch.h, Eval inlined).
+  virtual void EvalBatch(const T* p, const T* wi, std::size_t wi_stride, const T* wo, std::size_t wo_stride,
+                         std::size_t n, T* out) const {
+    for (std::size_t k = 0; k < n; ++k) {
+      const T* a = wi + k * wi_stride;
+      const T* b = wo + k * wo_stride;
+      const Rgb<T> f = Eval(p, Vec3<T>(a[0], a[1], a[2]), Vec3<T>(b[0], b[1], b[2]));
+      for (int c = 0; c < 3; ++c) out[3 * k + c] = f[c];
+    }
+  }
   // Importance sample wi given wo; pdf with respect to solid angle.
   virtual BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const = 0;
   // Density of Sample, with respect to solid angle.

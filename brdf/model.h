@@ -16,6 +16,7 @@
 // and is listed once in registry.h.
 #pragma once
 
+#include "brdf/batch.h"
 #include "brdf/core.h"
 #include "brdf/registry.h"
 
@@ -68,6 +69,10 @@ class ModelAdapter final : public Bxdf<T> {
     mm.template Sample<T>(p, w, 0.5, 0.5);
     mm.template Pdf<T>(p, w, w);
   };
+  void EvalBatch(const T* p, const T* wi, std::size_t wi_stride, const T* wo, std::size_t wo_stride, std::size_t n,
+                 T* out) const override {
+    brdfkit::EvalBatch(*m_, p, wi, wi_stride, wo, wo_stride, n, out);
+  }
   BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const override {
     if constexpr (kSamples) return m_->template Sample<T>(p, wo, u1, u2);
     else return BsdfSample<T>{};
@@ -109,6 +114,23 @@ class SumBxdf final : public Bxdf<T> {
     Rgb<T> f = Rgb<T>::Constant(T(0));
     for (std::size_t k = 0; k < lobes_.size(); ++k) f += lobes_[k]->EvalSum(p + offsets_[k], wi, wo, w, n);
     return f;
+  }
+  // Lobe by lobe over chunks small enough to stay in cache.
+  void EvalBatch(const T* p, const T* wi, std::size_t wi_stride, const T* wo, std::size_t wo_stride, std::size_t n,
+                 T* out) const override {
+    constexpr std::size_t kChunk = 256;
+    T part[3 * kChunk];
+    for (std::size_t start = 0; start < n; start += kChunk) {
+      const std::size_t m = std::min(kChunk, n - start);
+      const T* a = wi + start * wi_stride;
+      const T* b = wo + start * wo_stride;
+      T* o = out + 3 * start;
+      lobes_[0]->EvalBatch(p + offsets_[0], a, wi_stride, b, wo_stride, m, o);
+      for (std::size_t k = 1; k < lobes_.size(); ++k) {
+        lobes_[k]->EvalBatch(p + offsets_[k], a, wi_stride, b, wo_stride, m, part);
+        for (std::size_t i = 0; i < 3 * m; ++i) o[i] += part[i];
+      }
+    }
   }
   BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const override {
     const std::vector<double> w = Weights(p);

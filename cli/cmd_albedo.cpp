@@ -4,9 +4,26 @@
 #include <iostream>
 
 #include "cli/common.h"
+#include "cli/tasks.h"
 #include "validate/albedo.h"
 
 namespace brdfkit::cli {
+
+nlohmann::json AlbedoTableJson(const validate::AlbedoTable& t) {
+  nlohmann::json j = {{"model", t.model}, {"params", t.params_text}, {"mu", t.mu.nodes},
+                      {"E", t.E},         {"E_avg", t.E_avg},        {"ms_norm", t.ms_norm},
+                      {"max_error", t.max_error}, {"limit_error", t.limit_error}, {"seconds", t.seconds}};
+  nlohmann::json axes_j = nlohmann::json::array();
+  for (const auto& a : t.params) axes_j.push_back({{"name", a.name}, {"nodes", a.nodes}});
+  j["axes"] = axes_j;
+  if (t.f0_axis >= 0) {
+    j["F_avg"] = t.F_avg;
+    j["E1"] = t.E1;
+    j["E1_avg"] = t.E1_avg;
+    j["F_ms"] = t.F_ms;
+  }
+  return j;
+}
 
 void RegisterAlbedo(CLI::App& app) {
   auto* cmd = app.add_subcommand(
@@ -73,18 +90,7 @@ void RegisterAlbedo(CLI::App& app) {
       validate::WriteAlbedoHeader(t, header, p);
     }
     if (json) {
-      nlohmann::json j = {{"model", t.model}, {"params", t.params_text}, {"mu", t.mu.nodes},
-                          {"E", t.E},         {"E_avg", t.E_avg},        {"ms_norm", t.ms_norm},
-                          {"max_error", t.max_error}, {"limit_error", t.limit_error}, {"seconds", t.seconds}};
-      nlohmann::json axes_j = nlohmann::json::array();
-      for (const auto& a : t.params) axes_j.push_back({{"name", a.name}, {"nodes", a.nodes}});
-      j["axes"] = axes_j;
-      if (t.f0_axis >= 0) {
-        j["F_avg"] = t.F_avg;
-        j["E1"] = t.E1;
-        j["E1_avg"] = t.E1_avg;
-        j["F_ms"] = t.F_ms;
-      }
+      const nlohmann::json j = AlbedoTableJson(t);
       std::cout << j.dump() << "\n";
     } else if (csv.empty() && exr.empty() && header.empty()) {
       std::string names = t.params[0].name;

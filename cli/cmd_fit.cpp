@@ -131,6 +131,7 @@ void WriteTracePlot(const std::string& path, const fit::Result& r) {
 nlohmann::json FitResultJson(const fit::Result& r, const fit::Options& o) { return ResultJson(r, o); }
 std::string FitTraceCsv(const fit::Result& r) { return TraceCsv(r); }
 void WriteFitTracePlot(const std::string& path, const fit::Result& r) { WriteTracePlot(path, r); }
+void ParseFitLoss(const std::string& text, fit::Options& o) { ParseLoss(text, o); }
 
 LoadedModel LoadFitModel(const std::string& path) {
   std::ifstream in(path);

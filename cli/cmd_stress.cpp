@@ -9,6 +9,7 @@
 #include "brdf/atomic_file.h"
 #include "brdf/merl.h"
 #include "cli/common.h"
+#include "cli/tasks.h"
 #include "fit/fit.h"
 #include "validate/stress.h"
 
@@ -128,7 +129,82 @@ bool Clean(const validate::StressRow& r) {
                        r.nonfinite_derivative_count == 0 && r.sample_failures == 0 && r.bound_failures == 0);
 }
 
+struct StressRun {
+  std::vector<validate::StressRow> rows;
+  double sweep_seconds = 0;
+  std::vector<validate::StiffIntegral> integrals;
+  std::vector<StiffFit> fits;
+  bool clean = true;
+};
+
+StressRun RunAll(const std::vector<std::string>& models, const std::string& merl, bool sweep_only) {
+  validate::StressOptions so;
+  for (const std::string& m : models) {
+    bool known = false;
+    for (const ModelInfo& i : RegisteredModelInfos()) known = known || i.name == m;
+    if (!known)
+      throw UsageError("stress: unknown model '" + m + "' (known models: " + Model::KnownNames() + ")" +
+                       DidYouMean(m, Model::KnownModelNames()));
+    so.models.push_back(m);
+  }
+  if (!merl.empty()) {
+    MerlTable::Read(merl);  // a bad file is named here, before the sweep
+    so.settings.push_back({"merl", Settings{{"path", merl}}});
+  }
+  const auto t0 = std::chrono::steady_clock::now();
+  StressRun run;
+  run.rows = validate::RunStress(so);
+  run.sweep_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  if (!sweep_only && models.empty()) {
+    run.integrals = validate::RunStiffIntegrals();
+    run.fits = RunStiffFits();
+  }
+  for (const auto& r : run.rows) run.clean = run.clean && Clean(r);
+  return run;
+}
+
+nlohmann::json RunJson(const StressRun& run) {
+  nlohmann::json j;
+  j["models"] = nlohmann::json::array();
+  for (const auto& r : run.rows) j["models"].push_back(RowJson(r));
+  j["sweep_seconds"] = run.sweep_seconds;
+  j["clean"] = run.clean;
+  j["stiff_integrals"] = nlohmann::json::array();
+  for (const auto& s : run.integrals)
+    j["stiff_integrals"].push_back({{"model", s.model},
+                                    {"params", s.params},
+                                    {"mu", s.mu},
+                                    {"albedo", s.value},
+                                    {"error", s.error},
+                                    {"evals", s.evals},
+                                    {"reference", s.reference},
+                                    {"reference_error", s.reference_error},
+                                    {"reference_evals", s.reference_evals},
+                                    {"seconds", s.seconds},
+                                    {"finite", s.finite},
+                                    {"agree", s.agree}});
+  j["stiff_fits"] = nlohmann::json::array();
+  for (const auto& f : run.fits)
+    j["stiff_fits"].push_back({{"case", f.name},
+                               {"start", f.start.empty() ? nlohmann::json("multi-start") : nlohmann::json(f.start)},
+                               {"metric", f.metric},
+                               {"params", FormatParams(f.result.model.Info(), f.result.params)},
+                               {"alpha_rel_error", f.alpha_rel_error},
+                               {"albedo_rel_error", f.albedo_rel_error},
+                               {"converged", f.result.converged},
+                               {"iterations", f.result.iterations},
+                               {"rmse", f.result.rmse},
+                               {"message", f.result.message},
+                               {"seconds", f.result.seconds},
+                               {"finite", f.finite}});
+  return j;
+}
+
 }  // namespace
+
+nlohmann::json StressJson(const std::vector<std::string>& models, const std::string& merl, bool sweep_only) {
+  return RunJson(RunAll(models, merl, sweep_only));
+}
 
 void RegisterStress(CLI::App& app) {
   auto* cmd = app.add_subcommand(
@@ -143,64 +219,13 @@ void RegisterStress(CLI::App& app) {
   cmd->add_flag("--sweep-only", sweep_only, "skip the stiff integrals and fits");
   cmd->add_option("--output,-o", output, "also write the JSON report to this file (written atomically)");
   cmd->callback([] {
-    validate::StressOptions so;
-    for (const std::string& m : models) {
-      bool known = false;
-      for (const ModelInfo& i : RegisteredModelInfos()) known = known || i.name == m;
-      if (!known)
-        throw UsageError("stress: unknown model '" + m + "' (known models: " + Model::KnownNames() + ")" +
-                         DidYouMean(m, Model::KnownModelNames()));
-      so.models.push_back(m);
-    }
-    if (!merl.empty()) {
-      MerlTable::Read(merl);  // a bad file is named here, before the sweep
-      so.settings.push_back({"merl", Settings{{"path", merl}}});
-    }
-    const auto t0 = std::chrono::steady_clock::now();
-    const std::vector<validate::StressRow> rows = validate::RunStress(so);
-    const double sweep_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    std::vector<validate::StiffIntegral> integrals;
-    std::vector<StiffFit> fits;
-    if (!sweep_only && models.empty()) {
-      integrals = validate::RunStiffIntegrals();
-      fits = RunStiffFits();
-    }
-    bool clean = true;
-    for (const auto& r : rows) clean = clean && Clean(r);
-
-    nlohmann::json j;
-    j["models"] = nlohmann::json::array();
-    for (const auto& r : rows) j["models"].push_back(RowJson(r));
-    j["sweep_seconds"] = sweep_seconds;
-    j["clean"] = clean;
-    j["stiff_integrals"] = nlohmann::json::array();
-    for (const auto& s : integrals)
-      j["stiff_integrals"].push_back({{"model", s.model},
-                                      {"params", s.params},
-                                      {"mu", s.mu},
-                                      {"albedo", s.value},
-                                      {"error", s.error},
-                                      {"evals", s.evals},
-                                      {"reference", s.reference},
-                                      {"reference_error", s.reference_error},
-                                      {"reference_evals", s.reference_evals},
-                                      {"seconds", s.seconds},
-                                      {"finite", s.finite},
-                                      {"agree", s.agree}});
-    j["stiff_fits"] = nlohmann::json::array();
-    for (const auto& f : fits)
-      j["stiff_fits"].push_back({{"case", f.name},
-                                 {"start", f.start.empty() ? nlohmann::json("multi-start") : nlohmann::json(f.start)},
-                                 {"metric", f.metric},
-                                 {"params", FormatParams(f.result.model.Info(), f.result.params)},
-                                 {"alpha_rel_error", f.alpha_rel_error},
-                                 {"albedo_rel_error", f.albedo_rel_error},
-                                 {"converged", f.result.converged},
-                                 {"iterations", f.result.iterations},
-                                 {"rmse", f.result.rmse},
-                                 {"message", f.result.message},
-                                 {"seconds", f.result.seconds},
-                                 {"finite", f.finite}});
+    const StressRun run = RunAll(models, merl, sweep_only);
+    const nlohmann::json j = RunJson(run);
+    const auto& rows = run.rows;
+    const auto& integrals = run.integrals;
+    const auto& fits = run.fits;
+    const bool clean = run.clean;
+    const double sweep_seconds = run.sweep_seconds;
     if (!output.empty()) WriteFileAtomic(output, j.dump(2) + "\n");
     if (json) {
       std::cout << j.dump(2) << "\n";

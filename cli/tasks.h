@@ -8,6 +8,7 @@
 
 namespace brdfkit::validate {
 struct CheckResult;
+struct AlbedoTable;
 }
 namespace brdfkit::fit {
 struct Result;
@@ -24,6 +25,16 @@ nlohmann::json CheckResultJson(const validate::CheckResult& r);
 nlohmann::json FitResultJson(const fit::Result& r, const fit::Options& o);
 std::string FitTraceCsv(const fit::Result& r);
 void WriteFitTracePlot(const std::string& path, const fit::Result& r);
+// --loss text ("none", "huber", "cauchy:0.5") into the options; throws UsageError.
+void ParseFitLoss(const std::string& text, fit::Options& o);
+
+// cmd_albedo.cpp: the JSON of `brdfkit albedo --json`.
+nlohmann::json AlbedoTableJson(const validate::AlbedoTable& t);
+
+// cmd_stress.cpp: the JSON of `brdfkit stress --json` for registered model
+// names (empty: every model), an optional MERL file for the merl model, and
+// the stiff integrals and fits unless sweep_only (or models are named).
+nlohmann::json StressJson(const std::vector<std::string>& models, const std::string& merl, bool sweep_only);
 
 // cmd_convergence.cpp: writes convergence.csv, convergence.svg and
 // convergence_summary.md into out_dir.

@@ -12,7 +12,7 @@ endif()
 execute_process(COMMAND ${CMAKE_COMMAND} -S ${SOURCE_DIR} -B ${BINARY_DIR} -DCMAKE_BUILD_TYPE=Release
                         -DCMAKE_CXX_COMPILER=${CXX} "-DCMAKE_CXX_FLAGS_RELEASE=-O1 -DNDEBUG"
                         -DBRDFKIT_SANITIZE=ON -DBRDFKIT_WERROR=OFF -DBRDFKIT_BUILD_BENCH=OFF -DBRDFKIT_INSTALL=OFF
-                        -DBRDFKIT_ROBUSTNESS_TESTS=OFF
+                        -DBRDFKIT_ROBUSTNESS_TESTS=OFF -DBRDFKIT_PYTHON=OFF
                 RESULT_VARIABLE rc)
 if(NOT rc EQUAL 0)
   message(FATAL_ERROR "sanitizers: configuring ${BINARY_DIR} failed")

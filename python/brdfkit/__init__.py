@@ -1,0 +1,264 @@
+"""brdfkit: measure, check and fit BRDFs from Python, on numpy arrays.
+
+The same models, checks, albedo tables, synthetic measurements, fits and
+file formats as the ``brdfkit`` command line, with the same results (the
+dicts returned here hold what ``--json`` prints) and the same messages
+(raised as ``ValueError`` or ``TypeError``).
+
+>>> import numpy as np, brdfkit
+>>> m = brdfkit.Model("lambert+ggx", {"lambert.albedo": 0.5, "ggx.alpha": 0.2})
+>>> m.eval(np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 1.0])).shape
+(3,)
+
+Long calls (check, albedo_table, synth, fit, Model.albedo) release the
+GIL, stop with KeyboardInterrupt on Ctrl-C and take ``threads``.
+"""
+
+import os as _os
+
+from ._brdfkit import Model, models
+from . import _brdfkit
+
+__all__ = ["Model", "models", "check", "albedo_table", "synth", "fit", "stress", "read", "write", "FORMATS"]
+
+
+def _existing(path, what):
+    """The path as a string; FileNotFoundError naming it when it does not exist."""
+    p = _os.fspath(path)
+    if not _os.path.exists(p):
+        raise FileNotFoundError(f"{what} '{p}' does not exist")
+    return p
+
+
+def check(model, params=None, *, sampling=True, samples=100000, random_pairs=4000, seed=1, threads=0):
+    """Physical plausibility of a model, as ``brdfkit check --json``.
+
+    Parameters
+    ----------
+    model : Model or str
+        A Model, or a model name (then ``params`` gives its values).
+    params : dict or str, optional
+        Parameter values when ``model`` is a name.
+    sampling : bool
+        Run the sampling tests (pdf integral, chi-square); when False the
+        result's ``sampling_note`` says they were not run.
+    samples : int
+        Samples per direction for the chi-square test.
+    random_pairs : int
+        Random direction pairs of the reciprocity and value checks.
+    seed : int
+        Seed of every random draw.
+    threads : int
+        Threads (0: every core).
+
+    Returns
+    -------
+    dict
+        reciprocity_max_rel_error, albedo_max, albedo_max_at_mu, min_value,
+        nonfinite_count, pdf_integral, chi2_p_value, plausible, reasons, ...
+    """
+    return _brdfkit._check(model, params, sampling, samples, random_pairs, seed, threads)
+
+
+def albedo_table(model, params=None, *, axes="mu:32,alpha:32", nodes="uniform", tolerance=1e-6, channel=0,
+                 threads=0):
+    """Directional albedo table E(mu, p), E_avg(p) and the Kulla-Conty terms.
+
+    As ``brdfkit albedo --json``; the tables are numpy arrays.
+
+    Parameters
+    ----------
+    model : Model or str
+    params : dict or str, optional
+        Values of the parameters that are not axes.
+    axes : str
+        ``mu:N`` then one or two parameters ``name:count[:lower:upper]``.
+    nodes : {"uniform", "gauss"}
+    tolerance : float
+        Absolute error target per entry.
+    channel : int
+        RGB channel tabulated.
+    threads : int
+        Threads (0: every core).
+
+    Returns
+    -------
+    dict
+        model, params, mu, axes (name, nodes), E (n1 [x n2] x n_mu, mu
+        fastest), E_avg, ms_norm, max_error, limit_error, seconds, and
+        with an f0 axis F_avg, E1, E1_avg, F_ms.
+    """
+    import numpy as np
+
+    t = _brdfkit._albedo_table(model, params, axes, nodes, tolerance, channel, threads)
+    for key in ("mu", "E", "E_avg", "ms_norm", "F_avg", "E1", "E1_avg", "F_ms"):
+        if key in t:
+            t[key] = np.asarray(t[key], dtype=float)
+    for a in t["axes"]:
+        a["nodes"] = np.asarray(a["nodes"], dtype=float)
+    return t
+
+
+def synth(model, params=None, *, instrument=None, seed=0, out=(), threads=0):
+    """A synthetic gonioreflectometer measurement, as ``brdfkit synth``.
+
+    Parameters
+    ----------
+    model : Model or str
+    params : dict or str, optional
+    instrument : str, os.PathLike or dict, optional
+        Instrument JSON file or its content; default the built-in one.
+    seed : int
+        Seed of every random draw (noise, jitter).
+    out : sequence of str
+        Files to write as the command line's ``--out`` (.csv, .binary, .exr),
+        each with its FILE.json.
+    threads : int
+        Threads (0: every core).
+
+    Returns
+    -------
+    dict
+        The FILE.json content (instrument, model, params, seed, report) and
+        arrays wi, wo, f, sigma of shape (N, 3) and valid, saturated (N,).
+    """
+    if isinstance(out, (str, _os.PathLike)):
+        out = [out]
+    return _brdfkit._synth(model, params, instrument, seed, [_os.fspath(p) for p in out], threads)
+
+
+def fit(model, data, wo=None, f=None, sigma=None, *, init=None, metric="l2", loss="none", solver="dense_qr",
+        max_theta_deg=-1.0, threads=2, max_iterations=200, starts=5, covariance=True, use_sigma=True,
+        instrument=None, aperture_order=0):
+    """Least-squares fit of a model to measured reflectance, as ``brdfkit fit --json``.
+
+    Parameters
+    ----------
+    model : Model or str
+        A model name or sum (``"lambert+ggx"``), ``"fit:FILE"`` to refine a
+        previous fit, or a Model (its values are the starting point).
+    data : str, os.PathLike or array_like
+        A CSV table or MERL file, or the array wi (N, 3) with ``wo`` and ``f``.
+    wo, f, sigma : array_like, shape (N, 3), optional
+        With array data: directions towards the detector, f_r in 1/sr and
+        optionally its standard deviation (weights 1/sigma).
+    init : dict or str, optional
+        Starting point; default multi-start over roughness-like parameters.
+    metric : {"l2", "relative", "cosine", "log", "cbrt"}
+    loss : str
+        ``"none"``, ``"huber"`` or ``"cauchy"``, optionally ``:scale``.
+    solver : {"dense_qr", "dense_normal_cholesky", "iterative_schur", "cgnr"}
+    max_theta_deg : float
+        Drop samples with theta_i or theta_o above this (-1: none; 80 for cosine).
+    threads, max_iterations, starts : int
+    covariance : bool
+        Compute uncertainties.
+    use_sigma : bool
+        Weight by sigma when the data has it.
+    instrument : str or dict, optional
+        Fit through this instrument's finite apertures.
+    aperture_order : int
+
+    Returns
+    -------
+    dict
+        The command line's JSON (model, params, stddev, correlation, cost,
+        rmse, iterations, trace, ...) plus packed_names, packed_params,
+        packed_stddev, covariance (numpy) and model_object (the fitted Model).
+    """
+    if isinstance(data, (str, _os.PathLike)):
+        data = _existing(data, "data file")
+    return _brdfkit._fit(model, data, wo, f, sigma, init, metric, loss, solver, max_theta_deg, threads,
+                         max_iterations, starts, covariance, use_sigma, instrument, aperture_order)
+
+
+def stress(models=(), *, merl=None, sweep_only=False):
+    """Robustness sweep over extreme parameters and directions, as ``brdfkit stress --json``.
+
+    Parameters
+    ----------
+    models : sequence of str
+        Registered model names (default every model).
+    merl : str, optional
+        A MERL file for the merl model (otherwise it is skipped).
+    sweep_only : bool
+        Skip the stiff integrals and fits (they run only over every model).
+
+    Returns
+    -------
+    dict
+        models (one row per model and scalar type), sweep_seconds, clean,
+        stiff_integrals, stiff_fits.
+    """
+    if isinstance(models, str):
+        models = [models]
+    return _brdfkit._stress(list(models), "" if merl is None else _existing(merl, "MERL file"), sweep_only)
+
+
+class Format:
+    """A measured-data file format: name, file suffixes, reader and writer."""
+
+    def __init__(self, name, suffixes, reader, writer):
+        self.name = name
+        self.suffixes = tuple(suffixes)
+        self.reader = reader
+        self.writer = writer
+
+    def __repr__(self):
+        return f"brdfkit.Format({self.name!r}, {self.suffixes!r})"
+
+
+#: Known formats by name. A new format is one entry here.
+FORMATS = {
+    "merl": Format("merl", (".binary",), _brdfkit._read_merl, _brdfkit._write_merl),
+    "csv": Format("csv", (".csv",), _brdfkit._read_csv, _brdfkit._write_csv),
+}
+
+
+def _format(path, format):
+    if format is not None:
+        if format not in FORMATS:
+            raise ValueError(f"unknown format '{format}' (known formats: {', '.join(FORMATS)})")
+        return FORMATS[format]
+    suffix = _os.path.splitext(_os.fspath(path))[1].lower()
+    for fmt in FORMATS.values():
+        if suffix in fmt.suffixes:
+            return fmt
+    known = ", ".join(s for f in FORMATS.values() for s in f.suffixes)
+    raise ValueError(f"'{_os.fspath(path)}': unknown file suffix '{suffix}' (known: {known}; or give format=)")
+
+
+def read(path, format=None):
+    """Reads measured data.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    format : str, optional
+        A key of FORMATS; default from the suffix (.binary MERL, .csv table).
+
+    Returns
+    -------
+    dict
+        format, wi, wo, f (N, 3) of the valid samples, sigma (N, 3) or None,
+        missing (samples skipped), and for MERL values (3, 90, 90, 180).
+    """
+    fmt = _format(path, format)
+    return fmt.reader(_existing(path, "file"))
+
+
+def write(path, data, format=None):
+    """Writes measured data atomically (a complete file or none).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    data : dict or Model
+        CSV: a dict with wi, wo, f (N, 3) and optional sigma. MERL: a dict
+        with values (3, 90, 90, 180), or a Model (tabulated at the bin
+        centres).
+    format : str, optional
+        A key of FORMATS; default from the suffix.
+    """
+    fmt = _format(path, format)
+    fmt.writer(_os.fspath(path), data)

@@ -1,0 +1,75 @@
+from os import PathLike
+from typing import Any, Callable, Mapping, Sequence, Union
+
+import numpy as np
+import numpy.typing as npt
+
+ArrayLike = npt.ArrayLike
+Params = Union[None, str, Mapping[str, Union[float, Sequence[float], str]]]
+PathArg = Union[str, PathLike]
+
+class Model:
+    """A BRDF model (one lobe or a sum of lobes) with its parameter values."""
+
+    def __init__(self, spec: str, params: Params = None) -> None: ...
+    @property
+    def spec(self) -> str: ...
+    @property
+    def params(self) -> dict[str, Union[float, tuple[float, float, float]]]: ...
+    @property
+    def packed(self) -> np.ndarray: ...
+    @property
+    def packed_names(self) -> list[str]: ...
+    @property
+    def info(self) -> dict[str, Any]: ...
+    def eval(self, wi: ArrayLike, wo: ArrayLike) -> np.ndarray:
+        """f_r(wi, wo) in 1/sr, shape (N, 3) or (3,); float32 for float32 inputs."""
+    def sample(self, wo: ArrayLike, u: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(wi (N, 3), pdf (N,), valid (N,)) for wo (N, 3) and u (N, 2) in [0, 1)."""
+    def pdf(self, wo: ArrayLike, wi: ArrayLike) -> np.ndarray:
+        """Solid-angle density of sample(), shape (N,)."""
+    def albedo(self, wo: ArrayLike, tolerance: float = 1e-6, threads: int = 0) -> np.ndarray:
+        """Directional albedo per channel, shape (N, 3) or (3,)."""
+
+def models() -> list[dict[str, Any]]:
+    """The registered models with their parameter tables."""
+
+def check(model: Union[Model, str], params: Params = None, *, sampling: bool = True, samples: int = 100000,
+          random_pairs: int = 4000, seed: int = 1, threads: int = 0) -> dict[str, Any]:
+    """Physical plausibility, as ``brdfkit check --json``."""
+
+def albedo_table(model: Union[Model, str], params: Params = None, *, axes: str = "mu:32,alpha:32",
+                 nodes: str = "uniform", tolerance: float = 1e-6, channel: int = 0,
+                 threads: int = 0) -> dict[str, Any]:
+    """Albedo tables, as ``brdfkit albedo --json`` (tables as numpy arrays)."""
+
+def synth(model: Union[Model, str], params: Params = None, *, instrument: Union[None, PathArg, dict] = None,
+          seed: int = 0, out: Union[PathArg, Sequence[PathArg]] = (), threads: int = 0) -> dict[str, Any]:
+    """A synthetic measurement: the FILE.json content plus arrays wi, wo, f, sigma, valid, saturated."""
+
+def fit(model: Union[Model, str], data: Union[PathArg, ArrayLike], wo: ArrayLike = None, f: ArrayLike = None,
+        sigma: ArrayLike = None, *, init: Params = None, metric: str = "l2", loss: str = "none",
+        solver: str = "dense_qr", max_theta_deg: float = -1.0, threads: int = 2, max_iterations: int = 200,
+        starts: int = 5, covariance: bool = True, use_sigma: bool = True,
+        instrument: Union[None, PathArg, dict] = None, aperture_order: int = 0) -> dict[str, Any]:
+    """A fit, as ``brdfkit fit --json``, plus packed arrays, covariance and the fitted Model."""
+
+def stress(models: Union[str, Sequence[str]] = (), *, merl: Union[None, PathArg] = None,
+           sweep_only: bool = False) -> dict[str, Any]:
+    """Robustness sweep, as ``brdfkit stress --json``."""
+
+class Format:
+    name: str
+    suffixes: tuple[str, ...]
+    reader: Callable[[str], dict[str, Any]]
+    writer: Callable[[str, Any], None]
+    def __init__(self, name: str, suffixes: Sequence[str], reader: Callable[[str], dict[str, Any]],
+                 writer: Callable[[str, Any], None]) -> None: ...
+
+FORMATS: dict[str, Format]
+
+def read(path: PathArg, format: Union[None, str] = None) -> dict[str, Any]:
+    """Measured data: format, wi, wo, f, sigma, missing (MERL: values too)."""
+
+def write(path: PathArg, data: Union[dict[str, Any], Model], format: Union[None, str] = None) -> None:
+    """Writes measured data atomically (CSV: dict of arrays; MERL: values or a Model)."""

@@ -1,0 +1,344 @@
+// The command line's tools on numpy arrays: check, albedo_table, synth, fit,
+// stress, and the readers and writers of measured data.
+#include <cmath>
+#include <filesystem>
+
+#include "brdf/merl.h"
+#include "brdf/params.h"
+#include "cli/common.h"
+#include "cli/tasks.h"
+#include "data_synth/outputs.h"
+#include "data_synth/synth.h"
+#include "data_synth/table_io.h"
+#include "fit/fit.h"
+#include "python/src/common.h"
+#include "validate/albedo.h"
+#include "validate/check.h"
+
+namespace brdfkit::python {
+
+namespace {
+
+nlohmann::json FromPython(const py::handle& obj) {
+  const std::string text = py::module_::import("json").attr("dumps")(obj).cast<std::string>();
+  return nlohmann::json::parse(text);
+}
+
+py::dict Check(const py::object& model, const py::object& params, bool sampling, std::int64_t samples,
+               int random_pairs, std::uint64_t seed, int threads) {
+  const PyModel m = ModelArgument(model, params);
+  if (samples < 1000 || samples > 100000000)
+    throw ArgumentError("samples must lie in [1000, 100000000] (got " + std::to_string(samples) + ")");
+  if (random_pairs < 1) throw ArgumentError("random_pairs must be at least 1");
+  validate::CheckOptions o;
+  o.sampling = sampling;
+  o.sampling_samples = samples;
+  o.random_pairs = random_pairs;
+  o.seed = seed;
+  validate::CheckResult r;
+  RunReleased(threads, [&](const CancelToken& token) {
+    const CancellableBxdf b(*m.bxdf, token);
+    r = validate::CheckPlausibility(b, m.params.data(), o);
+  });
+  nlohmann::json j = cli::CheckResultJson(r);
+  j["model"] = m.model.Spec();
+  j["params"] = FormatParams(m.model.Info(), m.params);
+  return ToPython(j);
+}
+
+py::dict AlbedoTableFn(const py::object& model, const py::object& params, const std::string& axes,
+                       const std::string& nodes, double tolerance, int channel, int threads) {
+  const PyModel m = ModelArgument(model, params);
+  if (nodes != "uniform" && nodes != "gauss")
+    throw ArgumentError("nodes must be 'uniform' or 'gauss' (got '" + nodes + "')");
+  if (!(tolerance >= 1e-12 && tolerance <= 1e-2))
+    throw ArgumentError("tolerance must lie in [1e-12, 1e-2] (got " + FormatDouble(tolerance) + ")");
+  if (channel < 0 || channel > 2) throw ArgumentError("channel must be 0, 1 or 2");
+  validate::AlbedoTableRequest req;
+  req.axes = validate::ParseAxes(axes);
+  req.rule = nodes == "gauss" ? validate::NodeRule::kGauss : validate::NodeRule::kUniform;
+  req.quadrature.abs_tolerance = tolerance;
+  req.channel = channel;
+  validate::AlbedoTable t;
+  RunReleased(threads, [&](const CancelToken& token) {
+    req.progress = [&token](std::size_t, std::size_t) { token.ThrowIfCancelled(); };
+    t = validate::BuildAlbedoTable(m.model, m.params, req);
+  });
+  return ToPython(cli::AlbedoTableJson(t));
+}
+
+synth::Instrument InstrumentArgument(const py::object& instrument) {
+  if (instrument.is_none()) return synth::DefaultInstrument();
+  if (py::isinstance<py::str>(instrument) || py::isinstance(instrument, py::module_::import("os").attr("PathLike")))
+    return synth::LoadInstrument(py::str(instrument).cast<std::string>());
+  if (py::isinstance<py::dict>(instrument)) return synth::ParseInstrument(FromPython(instrument), "instrument");
+  throw DtypeError("instrument must be None, a file name or a dict (the instrument JSON)");
+}
+
+py::dict Synth(const py::object& model, const py::object& params, const py::object& instrument,
+               std::uint64_t seed, const std::vector<std::string>& out, int threads) {
+  const PyModel m = ModelArgument(model, params);
+  const synth::Instrument inst = InstrumentArgument(instrument);
+  synth::SynthResult r;
+  synth::Provenance prov;
+  prov.model = m.model.Spec();
+  prov.params = m.params;
+  prov.params_text = FormatParams(m.model.Info(), m.params);
+  prov.seed = seed;
+  RunReleased(threads, [&](const CancelToken& token) {
+    r = synth::Synthesize(inst, m.model, m.params, seed,
+                          [&token](std::size_t, std::size_t) { token.ThrowIfCancelled(); });
+    for (const std::string& path : out) synth::WriteSynthOutput(path, inst, r, prov);
+  });
+  const std::size_t n = r.samples.size();
+  py::array_t<double> wi({n, std::size_t(3)}), wo({n, std::size_t(3)}), f({n, std::size_t(3)}),
+      sigma({n, std::size_t(3)});
+  py::array_t<bool> valid(n), saturated(n);
+  for (std::size_t k = 0; k < n; ++k) {
+    const synth::PlannedPair& p = r.plan.pairs[k];
+    const Eigen::Vector3d a = synth::DirectionFromAngles(p.theta_i, p.phi_i);
+    const Eigen::Vector3d b = synth::DirectionFromAngles(p.theta_o, p.phi_o);
+    for (int c = 0; c < 3; ++c) {
+      wi.mutable_at(k, c) = a[c];
+      wo.mutable_at(k, c) = b[c];
+      f.mutable_at(k, c) = r.samples[k].f[c];
+      sigma.mutable_at(k, c) = r.samples[k].sigma[c];
+    }
+    valid.mutable_at(k) = r.samples[k].valid;
+    saturated.mutable_at(k) = r.samples[k].saturated;
+  }
+  py::dict d = ToPython(synth::Sidecar(inst, r, prov));
+  d["wi"] = wi;
+  d["wo"] = wo;
+  d["f"] = f;
+  d["sigma"] = sigma;
+  d["valid"] = valid;
+  d["saturated"] = saturated;
+  return d;
+}
+
+// Fit data: a file name, or arrays wi, wo, f (N, 3) and optional sigma.
+fit::Dataset DatasetArgument(const py::object& data, const py::object& wo_obj, const py::object& f_obj,
+                             const py::object& sigma_obj) {
+  if (py::isinstance<py::str>(data) || py::isinstance(data, py::module_::import("os").attr("PathLike"))) {
+    if (!wo_obj.is_none() || !f_obj.is_none() || !sigma_obj.is_none())
+      throw ArgumentError("give either a file name or arrays wi, wo, f (and sigma), not both");
+    const std::string path = py::str(data).cast<std::string>();
+    return fit::LoadDataset(path);
+  }
+  if (wo_obj.is_none() || f_obj.is_none()) throw ArgumentError("fit data: give a file name, or arrays wi, wo and f");
+  const Rows<double> wi = AsRows<double>(data, "wi", 3, true);
+  const Rows<double> wo = AsRows<double>(wo_obj, "wo", 3, true);
+  const Rows<double> f = AsRows<double>(f_obj, "f", 3, false);
+  if (wi.single || wo.single || f.single || wi.n != wo.n || wi.n != f.n)
+    throw ArgumentError("fit data: wi, wo and f must all have shape (N, 3) with the same N (got " +
+                        std::to_string(wi.n) + ", " + std::to_string(wo.n) + " and " + std::to_string(f.n) + " rows)");
+  fit::Dataset d;
+  d.source = "arrays";
+  d.has_sigma = !sigma_obj.is_none();
+  Rows<double> sigma;
+  if (d.has_sigma) {
+    sigma = AsRows<double>(sigma_obj, "sigma", 3, false);
+    if (sigma.single || sigma.n != wi.n)
+      throw ArgumentError("sigma must have shape (N, 3) like f (got " + std::to_string(sigma.n) + " rows)");
+  }
+  d.samples.resize(wi.n);
+  for (std::size_t k = 0; k < wi.n; ++k) {
+    fit::Sample& s = d.samples[k];
+    for (int c = 0; c < 3; ++c) {
+      s.wi[c] = wi.data()[3 * k + c];
+      s.wo[c] = wo.data()[3 * k + c];
+      s.f[c] = f.data()[3 * k + c];
+      s.sigma[c] = d.has_sigma ? sigma.data()[3 * k + c] : 0.0;
+      if (d.has_sigma && !(s.sigma[c] > 0))
+        throw ArgumentError("sigma row " + std::to_string(k) + " must be positive (got " + FormatDouble(s.sigma[c]) + ")");
+    }
+  }
+  return d;
+}
+
+py::dict Fit(const py::object& model, const py::object& data, const py::object& wo, const py::object& f,
+             const py::object& sigma, const py::object& init, const std::string& metric, const std::string& loss,
+             const std::string& solver, double max_theta_deg, int threads, int max_iterations, int starts,
+             bool covariance, bool use_sigma, const py::object& instrument, int aperture_order) {
+  fit::Options o;
+  try {
+    o.metric = fit::ParseMetric(metric);
+    o.solver = fit::ParseLinearSolver(solver);
+  } catch (const std::invalid_argument& e) {
+    throw ArgumentError(e.what());
+  }
+  cli::ParseFitLoss(loss, o);
+  if (max_theta_deg != -1 && !(max_theta_deg > 0 && max_theta_deg <= 90))
+    throw ArgumentError("max_theta_deg must be in (0, 90]");
+  if (threads < 1) throw ArgumentError("threads must be at least 1");
+  if (max_iterations < 1) throw ArgumentError("max_iterations must be at least 1");
+  if (starts < 1) throw ArgumentError("starts must be at least 1");
+  o.max_theta_deg = max_theta_deg;
+  o.num_threads = threads;
+  o.max_iterations = max_iterations;
+  o.starts_per_param = starts;
+  o.covariance = covariance;
+  o.use_sigma = use_sigma;
+  Model mm = Model::Parse("lambert");
+  if (py::isinstance<PyModel>(model)) {
+    const PyModel pm = model.cast<PyModel>();
+    mm = pm.model;
+    if (init.is_none()) o.initial = pm.params;
+  } else if (py::isinstance<py::str>(model)) {
+    const std::string spec = model.cast<std::string>();
+    if (spec.rfind("fit:", 0) == 0) {
+      const cli::LoadedModel lm = cli::LoadFitModel(spec.substr(4));
+      mm = lm.model;
+      if (init.is_none()) o.initial = lm.params;
+    } else {
+      mm = Model::Parse(spec);
+    }
+  } else {
+    throw DtypeError("model must be a brdfkit.Model or a model name such as 'lambert+ggx'");
+  }
+  if (!init.is_none()) o.initial = MakeModel(mm.Spec(), init).params;
+  synth::Instrument inst;
+  if (!instrument.is_none()) {
+    inst = InstrumentArgument(instrument);
+    o.instrument = &inst;
+    o.aperture_order = aperture_order;
+  }
+  const fit::Dataset ds = DatasetArgument(data, wo, f, sigma);
+  fit::Result r;
+  RunReleased(threads, [&](const CancelToken& token) {
+    o.progress = [&token](int, double, double) { token.ThrowIfCancelled(); };
+    r = fit::Fit(mm, ds, o);
+  });
+  o.progress = nullptr;
+  py::dict d = ToPython(cli::FitResultJson(r, o));
+  const std::size_t n = r.params.size();
+  d["packed_names"] = r.packed_names;
+  d["packed_params"] = py::array_t<double>(n, r.params.data());
+  d["packed_stddev"] = py::array_t<double>(n, r.stddev.data());
+  py::array_t<double> cov({n, n});
+  for (std::size_t i = 0; i < n; ++i)
+    for (std::size_t k = 0; k < n; ++k)
+      cov.mutable_at(i, k) = r.covariance_ok ? r.correlation(i, k) * r.stddev[i] * r.stddev[k]
+                                             : std::numeric_limits<double>::quiet_NaN();
+  d["covariance"] = cov;
+  d["model_object"] = py::cast(MakeModel(r.model.Spec(), py::str(FormatParams(r.model.Info(), r.params))));
+  return d;
+}
+
+py::dict Stress(const std::vector<std::string>& models, const std::string& merl, bool sweep_only) {
+  nlohmann::json j;
+  {
+    py::gil_scoped_release release;
+    j = cli::StressJson(models, merl, sweep_only);
+  }
+  return ToPython(j);
+}
+
+// --- measured data files -----------------------------------------------------
+
+py::dict DatasetDict(const fit::Dataset& d) {
+  const std::size_t n = d.samples.size();
+  py::array_t<double> wi({n, std::size_t(3)}), wo({n, std::size_t(3)}), f({n, std::size_t(3)}),
+      sigma({n, std::size_t(3)});
+  for (std::size_t k = 0; k < n; ++k)
+    for (int c = 0; c < 3; ++c) {
+      wi.mutable_at(k, c) = d.samples[k].wi[c];
+      wo.mutable_at(k, c) = d.samples[k].wo[c];
+      f.mutable_at(k, c) = d.samples[k].f[c];
+      sigma.mutable_at(k, c) = d.samples[k].sigma[c];
+    }
+  py::dict out;
+  out["wi"] = wi;
+  out["wo"] = wo;
+  out["f"] = f;
+  out["sigma"] = d.has_sigma ? py::object(sigma) : py::object(py::none());
+  out["missing"] = d.missing;
+  return out;
+}
+
+py::dict ReadMerl(const std::string& path) {
+  const MerlTable t = MerlTable::Read(path);
+  py::dict d = DatasetDict(fit::FromMerl(t, path));
+  py::array_t<double> values({std::size_t(3), std::size_t(MerlTable::kThetaH), std::size_t(MerlTable::kThetaD),
+                              std::size_t(MerlTable::kPhiD)});
+  std::copy(t.values.begin(), t.values.end(), values.mutable_data());
+  d["values"] = values;
+  d["format"] = "merl";
+  return d;
+}
+
+void WriteMerl(const std::string& path, const py::object& data) {
+  MerlTable t;
+  if (py::isinstance<PyModel>(data)) {
+    // f_r of the model at every bin centre.
+    const PyModel m = data.cast<PyModel>();
+    for (int i = 0; i < MerlTable::kThetaH; ++i)
+      for (int j = 0; j < MerlTable::kThetaD; ++j)
+        for (int k = 0; k < MerlTable::kPhiD; ++k) {
+          Eigen::Vector3d wi, wo;
+          MerlTable::BinDirections(i, j, k, wi, wo);
+          const Rgb<double> f = m.bxdf->Eval(m.params.data(), wi, wo);
+          for (int c = 0; c < 3; ++c) t.values[c * MerlTable::kCells + MerlTable::Index(i, j, k)] = f[c];
+        }
+  } else {
+    const py::object v = py::isinstance<py::dict>(data) ? py::object(data.cast<py::dict>()["values"]) : data;
+    auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(v);
+    if (!a || a.size() != static_cast<py::ssize_t>(3 * MerlTable::kCells))
+      throw ArgumentError("MERL data: give a Model, or values of shape (3, 90, 90, 180) (f_r in 1/sr, -1 missing)");
+    for (py::ssize_t k = 0; k < a.size(); ++k) {
+      if (!std::isfinite(a.data()[k]))
+        throw ArgumentError("MERL values: entry " + std::to_string(k) + " is not finite");
+      t.values[k] = a.data()[k];
+    }
+  }
+  t.Write(path);
+}
+
+py::dict ReadCsv(const std::string& path) {
+  py::dict d = DatasetDict(fit::FromTable(synth::ReadTableCsv(path), path));
+  d["format"] = "csv";
+  return d;
+}
+
+void WriteCsv(const std::string& path, const py::dict& data) {
+  for (const char* key : {"wi", "wo", "f"})
+    if (!data.contains(key)) throw ArgumentError(std::string("CSV data: missing '") + key + "' (arrays wi, wo, f, optional sigma)");
+  const py::object sigma_obj = data.contains("sigma") ? py::object(data["sigma"]) : py::object(py::none());
+  const fit::Dataset d = DatasetArgument(data["wi"], data["wo"], data["f"], sigma_obj);
+  synth::BrdfTable t;
+  t.has_sigma = d.has_sigma;
+  for (const fit::Sample& s : d.samples) {
+    synth::BrdfSample r;
+    r.theta_i = std::acos(std::clamp(s.wi.z(), -1.0, 1.0));
+    r.phi_i = std::atan2(s.wi.y(), s.wi.x());
+    r.theta_o = std::acos(std::clamp(s.wo.z(), -1.0, 1.0));
+    r.phi_o = std::atan2(s.wo.y(), s.wo.x());
+    r.f = s.f;
+    r.sigma = s.sigma;
+    t.rows.push_back(r);
+  }
+  synth::WriteTableCsv(path, t);
+}
+
+}  // namespace
+
+void BindTools(py::module_& m) {
+  m.def("_check", &Check, py::arg("model"), py::arg("params"), py::arg("sampling"), py::arg("samples"),
+        py::arg("random_pairs"), py::arg("seed"), py::arg("threads"));
+  m.def("_albedo_table", &AlbedoTableFn, py::arg("model"), py::arg("params"), py::arg("axes"), py::arg("nodes"),
+        py::arg("tolerance"), py::arg("channel"), py::arg("threads"));
+  m.def("_synth", &Synth, py::arg("model"), py::arg("params"), py::arg("instrument"), py::arg("seed"),
+        py::arg("out"), py::arg("threads"));
+  m.def("_fit", &Fit, py::arg("model"), py::arg("data"), py::arg("wo"), py::arg("f"), py::arg("sigma"),
+        py::arg("init"), py::arg("metric"), py::arg("loss"), py::arg("solver"), py::arg("max_theta_deg"),
+        py::arg("threads"), py::arg("max_iterations"), py::arg("starts"), py::arg("covariance"),
+        py::arg("use_sigma"), py::arg("instrument"), py::arg("aperture_order"));
+  m.def("_stress", &Stress, py::arg("models"), py::arg("merl"), py::arg("sweep_only"));
+  m.def("_read_merl", &ReadMerl, py::arg("path"));
+  m.def("_write_merl", &WriteMerl, py::arg("path"), py::arg("data"));
+  m.def("_read_csv", &ReadCsv, py::arg("path"));
+  m.def("_write_csv", &WriteCsv, py::arg("path"), py::arg("data"));
+}
+
+}  // namespace brdfkit::python

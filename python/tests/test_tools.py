@@ -1,0 +1,153 @@
+"""check, albedo_table, synth, fit, stress and files against the command line."""
+import _thread
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import brdfkit
+from conftest import cli, cli_error, cli_json, unit_rows, without_times
+
+
+def test_check_equals_cli():
+    py = brdfkit.check("ggx", {"alpha": 0.3}, samples=20000)
+    ref = cli_json("check", "--model", "ggx", "--params", "alpha=0.3", "--samples", 20000, "--json")
+    assert without_times(py) == without_times(ref)
+    assert py["plausible"] is True and py["sampling_checked"] is True
+
+
+def test_check_without_sampling_says_so():
+    r = brdfkit.check(brdfkit.Model("lambert"), sampling=False)
+    assert r["sampling_checked"] is False
+    assert r["pdf_integral"] is None and r["chi2_p_value"] is None
+
+
+def test_albedo_table_equals_cli():
+    py = brdfkit.albedo_table("ggx", axes="mu:5,alpha:3:0.1:1", tolerance=1e-5)
+    ref = cli_json("albedo", "--model", "ggx", "--axes", "mu:5,alpha:3:0.1:1", "--tolerance", 1e-5, "--json")
+    assert isinstance(py["E"], np.ndarray) and py["E"].shape == (15,)
+    for key in ("mu", "E", "E_avg", "ms_norm"):
+        np.testing.assert_array_equal(py[key], np.array(ref[key]))
+    assert py["axes"][0]["name"] == "alpha"
+    np.testing.assert_array_equal(py["axes"][0]["nodes"], ref["axes"][0]["nodes"])
+    # alpha = 1 column against the closed form 1 - mu ln(1 + 1/mu) (mu > 0).
+    mu = py["mu"][1:]
+    np.testing.assert_allclose(py["E"][10 + 1:], 1 - mu * np.log1p(1 / mu), atol=2e-5)
+
+
+def test_synth_writes_what_the_cli_writes(tmp):
+    py = brdfkit.synth("lambert+ggx", {"ggx.alpha": 0.2}, seed=7, out=[tmp / "py.csv"])
+    cli("synth", "--model", "lambert+ggx", "--params", "ggx.alpha=0.2", "--seed", 7, "--out", tmp / "cli.csv", "-q")
+    assert (tmp / "py.csv").read_bytes() == (tmp / "cli.csv").read_bytes()
+    assert py["f"].shape == py["wi"].shape == (len(py["valid"]), 3)
+    assert "report" in py or "synth" in py or "instrument" in py
+    # Noise-free built-in instrument: the measured f is the model's within the aperture blur.
+    m = brdfkit.Model("lambert+ggx", {"ggx.alpha": 0.2})
+    v = py["valid"]
+    np.testing.assert_allclose(py["f"][v], m.eval(py["wi"][v], py["wo"][v]), rtol=0.05)
+
+
+def test_fit_equals_cli_fit(tmp):
+    truth = brdfkit.Model("lambert+ggx", {"lambert.albedo": 0.4, "ggx.alpha": 0.15, "ggx.f0": 0.6})
+    wi, wo = unit_rows(3000, seed=11, min_z=0.1), unit_rows(3000, seed=12, min_z=0.1)
+    f = truth.eval(wi, wo)
+    brdfkit.write(tmp / "data.csv", {"wi": wi, "wo": wo, "f": f})
+    py = brdfkit.fit("lambert+ggx", tmp / "data.csv", threads=1)
+    ref = cli_json("fit", "--data", tmp / "data.csv", "--model", "lambert+ggx", "--threads", 1, "--json")
+    assert py["params"] == ref["params"]
+    assert py["stddev"] == ref["stddev"]
+    assert py["iterations"] == ref["iterations"] and py["cost"] == ref["cost"]
+    assert [t["cost"] for t in py["trace"]] == [t["cost"] for t in ref["trace"]]
+    np.testing.assert_allclose(py["params"]["ggx.alpha"], 0.15, rtol=1e-6)
+    # Covariance from the correlation and the standard deviations.
+    c = py["covariance"]
+    n = len(py["packed_names"])
+    assert c.shape == (n, n)
+    np.testing.assert_allclose(np.sqrt(np.diag(c)), py["packed_stddev"], rtol=1e-12)
+    # The same fit from arrays.
+    arr = brdfkit.fit("lambert+ggx", wi, wo, f, threads=1)
+    np.testing.assert_allclose(arr["packed_params"], py["packed_params"], rtol=1e-6)
+    assert isinstance(arr["model_object"], brdfkit.Model)
+
+
+def test_fit_with_sigma_and_errors(tmp):
+    truth = brdfkit.Model("lambert", {"albedo": 0.5})
+    wi, wo = unit_rows(200, seed=1), unit_rows(200, seed=2)
+    f = truth.eval(wi, wo)
+    r = brdfkit.fit("lambert", wi, wo, f, np.full_like(f, 1e-3))
+    np.testing.assert_allclose(r["params"]["albedo"], [0.5, 0.5, 0.5], rtol=1e-9)
+    with pytest.raises(ValueError, match="sigma row 0 must be positive"):
+        brdfkit.fit("lambert", wi, wo, f, np.zeros_like(f))
+    with pytest.raises(ValueError, match="same N"):
+        brdfkit.fit("lambert", wi, wo[:10], f)
+    with pytest.raises(ValueError, match="unknown metric|metric"):
+        brdfkit.fit("lambert", wi, wo, f, metric="l3")
+    with pytest.raises(ValueError) as e:
+        brdfkit.fit("lambert", wi, wo, f, loss="quadratic")
+    assert str(e.value) == cli_error("fit", "--data", "x.csv", "--model", "lambert", "--loss", "quadratic")
+    with pytest.raises(FileNotFoundError, match="nosuch.csv"):
+        brdfkit.fit("lambert", tmp / "nosuch.csv")
+
+
+def test_files_round_trip_and_bad_files(tmp):
+    wi, wo = unit_rows(50, seed=3), unit_rows(50, seed=4)
+    f = brdfkit.Model("ggx").eval(wi, wo)
+    brdfkit.write(tmp / "t.csv", {"wi": wi, "wo": wo, "f": f, "sigma": f * 0.01 + 1e-6})
+    d = brdfkit.read(tmp / "t.csv")
+    assert d["format"] == "csv"
+    np.testing.assert_allclose(d["wi"], wi, atol=1e-15)
+    np.testing.assert_array_equal(d["f"], f)
+    assert d["sigma"] is not None
+    m = brdfkit.Model("lambert+ggx", {"ggx.alpha": 0.3})
+    brdfkit.write(tmp / "m.binary", m)
+    merl = brdfkit.read(tmp / "m.binary")
+    assert merl["values"].shape == (3, 90, 90, 180)
+    # The cells hold the model at their centres; the merl model on this file
+    # looks them up (a centre is its bin's lower edge, so rounding puts about
+    # half of the lookups into the neighbouring bin: a nearby value).
+    k = slice(0, None, 37)
+    np.testing.assert_allclose(merl["f"][k], m.eval(merl["wi"][k], merl["wo"][k]), rtol=1e-12)
+    mm = brdfkit.Model("merl:" + str(tmp / "m.binary"))
+    looked_up = mm.eval(merl["wi"][k], merl["wo"][k])
+    assert np.isclose(looked_up, merl["f"][k], rtol=1e-12, atol=0).mean() > 0.3
+    assert np.median(np.abs(looked_up / merl["f"][k] - 1)) < 0.02
+    (tmp / "bad.binary").write_bytes(b"\x01\x00\x00\x00" * 3)
+    with pytest.raises(ValueError, match="bad.binary"):
+        brdfkit.read(tmp / "bad.binary")
+    (tmp / "bad.csv").write_text("theta_i,phi_i,theta_o,phi_o,f_r,f_g,f_b\n0,0,0,0,1,1\n")
+    with pytest.raises(ValueError, match="bad.csv"):
+        brdfkit.read(tmp / "bad.csv")
+    with pytest.raises(ValueError, match="unknown file suffix"):
+        brdfkit.read(tmp / "t.xyz")
+    with pytest.raises(FileNotFoundError):
+        brdfkit.read(tmp / "none.csv")
+    with pytest.raises(ValueError, match="missing 'f'"):
+        brdfkit.write(tmp / "x.csv", {"wi": wi, "wo": wo})
+    assert not (tmp / "x.csv").exists()
+
+
+def test_stress_equals_cli():
+    py = brdfkit.stress(["lambert", "ggx"], sweep_only=True)
+    ref = cli_json("stress", "-m", "lambert", "-m", "ggx", "--sweep-only", "--json")
+    assert without_times(py) == without_times(ref)
+    with pytest.raises(ValueError, match="unknown model 'nosuch'"):
+        brdfkit.stress(["nosuch"])
+
+
+def test_ctrl_c_interrupts_a_long_call():
+    # interrupt_main() delivers a simulated SIGINT to the main thread while
+    # the table is being built (several seconds of work uninterrupted).
+    timer = threading.Timer(0.3, _thread.interrupt_main)
+    t0 = time.monotonic()
+    timer.start()
+    with pytest.raises(KeyboardInterrupt):
+        brdfkit.albedo_table("ggx", axes="mu:64,alpha:64", threads=1)
+    assert time.monotonic() - t0 < 5
+    timer.join()
+
+
+def test_threads_argument_gives_the_same_table():
+    a = brdfkit.albedo_table("ggx", axes="mu:4,alpha:2:0.2:0.5", threads=1)
+    b = brdfkit.albedo_table("ggx", axes="mu:4,alpha:2:0.2:0.5", threads=2)
+    np.testing.assert_array_equal(a["E"], b["E"])
