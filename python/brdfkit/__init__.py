@@ -60,8 +60,8 @@ def check(model, params=None, *, sampling=True, samples=100000, random_pairs=400
     return _brdfkit._check(model, params, sampling, samples, random_pairs, seed, threads)
 
 
-def albedo_table(model, params=None, *, axes="mu:32,alpha:32", nodes="uniform", tolerance=1e-6, channel=0,
-                 threads=0):
+def albedo_table(model, params=None, *, axes="mu:32,alpha:32:0.001:1", nodes="uniform", tolerance=1e-6,
+                 accept_error=None, channel=0, threads=0):
     """Directional albedo table E(mu, p), E_avg(p) and the Kulla-Conty terms.
 
     As ``brdfkit albedo --json``; the tables are numpy arrays.
@@ -75,7 +75,11 @@ def albedo_table(model, params=None, *, axes="mu:32,alpha:32", nodes="uniform", 
         ``mu:N`` then one or two parameters ``name:count[:lower:upper]``.
     nodes : {"uniform", "gauss"}
     tolerance : float
-        Absolute error target per entry.
+        Absolute error target per entry: the table's contract. A table with
+        an entry whose error estimate exceeds it raises ValueError naming
+        the entries.
+    accept_error : float, optional
+        Accept entries whose error estimate is up to this instead.
     channel : int
         RGB channel tabulated.
     threads : int
@@ -90,7 +94,8 @@ def albedo_table(model, params=None, *, axes="mu:32,alpha:32", nodes="uniform", 
     """
     import numpy as np
 
-    t = _brdfkit._albedo_table(model, params, axes, nodes, tolerance, channel, threads)
+    t = _brdfkit._albedo_table(model, params, axes, nodes, tolerance, 0.0 if accept_error is None else accept_error,
+                               channel, threads)
     for key in ("mu", "E", "E_avg", "ms_norm", "F_avg", "E1", "E1_avg", "F_ms"):
         if key in t:
             t[key] = np.asarray(t[key], dtype=float)

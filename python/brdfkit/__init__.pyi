@@ -1,5 +1,5 @@
 from os import PathLike
-from typing import Any, Callable, Mapping, Sequence, Union
+from typing import Any, Callable, Mapping, Optional, Sequence, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -38,9 +38,9 @@ def check(model: Union[Model, str], params: Params = None, *, sampling: bool = T
           random_pairs: int = 4000, seed: int = 1, threads: int = 0) -> dict[str, Any]:
     """Physical plausibility, as ``brdfkit check --json``."""
 
-def albedo_table(model: Union[Model, str], params: Params = None, *, axes: str = "mu:32,alpha:32",
-                 nodes: str = "uniform", tolerance: float = 1e-6, channel: int = 0,
-                 threads: int = 0) -> dict[str, Any]:
+def albedo_table(model: Union[Model, str], params: Params = None, *, axes: str = "mu:32,alpha:32:0.001:1",
+                 nodes: str = "uniform", tolerance: float = 1e-6, accept_error: Optional[float] = None,
+                 channel: int = 0, threads: int = 0) -> dict[str, Any]:
     """Albedo tables, as ``brdfkit albedo --json`` (tables as numpy arrays)."""
 
 def synth(model: Union[Model, str], params: Params = None, *, instrument: Union[None, PathArg, dict] = None,

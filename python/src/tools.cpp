@@ -1,5 +1,6 @@
 // The command line's tools on numpy arrays: check, albedo_table, synth, fit,
 // stress, and the readers and writers of measured data.
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 
@@ -47,7 +48,7 @@ py::dict Check(const py::object& model, const py::object& params, bool sampling,
 }
 
 py::dict AlbedoTableFn(const py::object& model, const py::object& params, const std::string& axes,
-                       const std::string& nodes, double tolerance, int channel, int threads) {
+                       const std::string& nodes, double tolerance, double accept_error, int channel, int threads) {
   const PyModel m = ModelArgument(model, params);
   if (nodes != "uniform" && nodes != "gauss")
     throw ArgumentError("nodes must be 'uniform' or 'gauss' (got '" + nodes + "')");
@@ -64,6 +65,14 @@ py::dict AlbedoTableFn(const py::object& model, const py::object& params, const 
     req.progress = [&token](std::size_t, std::size_t) { token.ThrowIfCancelled(); };
     t = validate::BuildAlbedoTable(m.model, m.params, req);
   });
+  // The tables' contract, as the command line: no table above its tolerance
+  // unless a looser one is accepted explicitly.
+  const double accepted = std::max(accept_error, tolerance);
+  const std::vector<validate::AlbedoMiss> misses = validate::EntriesAboveTolerance(t, accepted);
+  if (!misses.empty())
+    throw ArgumentError(validate::DescribeMisses(misses, accepted) +
+                        "\nNarrow the parameter range (an alpha axis such as alpha:32:0.001:1), or accept a looser "
+                        "table with accept_error=.");
   return ToPython(cli::AlbedoTableJson(t));
 }
 
@@ -327,7 +336,7 @@ void BindTools(py::module_& m) {
   m.def("_check", &Check, py::arg("model"), py::arg("params"), py::arg("sampling"), py::arg("samples"),
         py::arg("random_pairs"), py::arg("seed"), py::arg("threads"));
   m.def("_albedo_table", &AlbedoTableFn, py::arg("model"), py::arg("params"), py::arg("axes"), py::arg("nodes"),
-        py::arg("tolerance"), py::arg("channel"), py::arg("threads"));
+        py::arg("tolerance"), py::arg("accept_error"), py::arg("channel"), py::arg("threads"));
   m.def("_synth", &Synth, py::arg("model"), py::arg("params"), py::arg("instrument"), py::arg("seed"),
         py::arg("out"), py::arg("threads"));
   m.def("_fit", &Fit, py::arg("model"), py::arg("data"), py::arg("wo"), py::arg("f"), py::arg("sigma"),

@@ -142,9 +142,17 @@ def test_ctrl_c_interrupts_a_long_call():
     t0 = time.monotonic()
     timer.start()
     with pytest.raises(KeyboardInterrupt):
-        brdfkit.albedo_table("ggx", axes="mu:64,alpha:64", threads=1)
+        brdfkit.albedo_table("ggx", axes="mu:64,alpha:64:0.001:1", threads=1)
     assert time.monotonic() - t0 < 5
     timer.join()
+
+
+def test_albedo_table_above_its_tolerance_raises():
+    # alpha down to 1e-7 (the default range) misses 1e-6 at grazing, as on the command line.
+    with pytest.raises(ValueError, match="miss the error tolerance"):
+        brdfkit.albedo_table("ggx", axes="mu:4,alpha:3")
+    t = brdfkit.albedo_table("ggx", axes="mu:4,alpha:3", accept_error=1.0)
+    assert t["max_error"] > 1e-6
 
 
 def test_threads_argument_gives_the_same_table():
