@@ -73,6 +73,12 @@ struct TaskSpec {
 
 const char* TaskTypeName(TaskSpec::Type t);
 
+// Every name a scene may use where the schema (examples/scene.schema.json)
+// lists an enumeration, from the libraries' own lists: task and instrument
+// types, albedo nodes and formats, synth formats, fit metrics, losses and
+// solvers, integration methods (`brdfkit run --names`).
+nlohmann::json SceneNames();
+
 struct Scene {
   std::string origin;    // file name for messages ("<embedded default scene>")
   std::string base_dir;  // relative paths resolve here
