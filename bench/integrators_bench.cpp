@@ -23,7 +23,7 @@
 #include "brdf/model.h"
 #include "brdf/params.h"
 #include "validate/integrators.h"
-#include "validate/quadrature.h"
+#include "brdf/quadrature.h"
 
 namespace {
 

@@ -11,12 +11,7 @@
 //   diffuse (eq. 5):
 //     28 Rd / (23 pi) (1 - Rs) (1 - (1 - cos_i / 2)^5) (1 - (1 - cos_o / 2)^5)
 //
-// | param | range       | default | meaning                                     |
-// |-------|-------------|---------|---------------------------------------------|
-// | rd    | [0, 1]      | 0.3     | diffuse reflectance Rd (colour)             |
-// | rs    | [0, 1]      | 0.05    | specular reflectance at normal incidence Rs |
-// | nu    | [1e-3, 1e8] | 100     | Phong exponent along x (u) (log scale)      |
-// | nv    | [1e-3, 1e8] | 100     | Phong exponent along y (v) (log scale)      |
+// Parameters, ranges and defaults: Info() below (`brdfkit models`).
 //
 // Notes:
 //  - At h = n the exponent is 0/0 while (n.h)^e = 1 for any e. The lobe is
@@ -54,9 +49,15 @@
 
 namespace brdfkit {
 
-// Packed parameters: rd (r, g, b), rs (r, g, b), nu, nv.
 struct AshikhminShirley {
   explicit AshikhminShirley(const Settings& = {}) {}
+
+  static constexpr Slot kRd{"rd", 0, true}, kRs{"rs", 3, true}, kNu{"nu", 6}, kNv{"nv", 7};
+  static constexpr std::array kSlots{kRd, kRs, kNu, kNv};
+  static constexpr unsigned kKind = LobeKind::kDiffuse | LobeKind::kGlossy;
+  static constexpr bool kChannelsIndependent = true;
+  // The half-vector lobe is cos^nu(theta_h) along x and cos^nv along y.
+  LobeWidth Width(const double* p) const { return {PhongExponentWidth(At(p, kNu)), PhongExponentWidth(At(p, kNv))}; }
 
   static ModelInfo Info() {
     ModelInfo info;
@@ -91,7 +92,7 @@ struct AshikhminShirley {
       // Near the horizon 1 - s2 loses hz to rounding; log(hz) does not.
       log_c_over_s2 = log(h.z()) / s2;
     }
-    return exp((p[6] * hx2 + p[7] * hy2) * log_c_over_s2);
+    return exp((At(p, kNu) * hx2 + At(p, kNv) * hy2) * log_c_over_s2);
   }
 
   template <typename T>
@@ -101,7 +102,7 @@ struct AshikhminShirley {
     const Vec3<T> h = HalfVector(wi, wo);
     const T k_h = HalfCos(wi, wo);  // = wi.h; the dot product goes negative by rounding for opposite grazing pairs
     const T max_cos = wi.z() > wo.z() ? wi.z() : wo.z();
-    const T spec = sqrt((p[6] + T(1)) * (p[7] + T(1))) * T(0.125 * kInvPi) * Lobe(p, h) / (k_h * max_cos);
+    const T spec = sqrt((At(p, kNu) + T(1)) * (At(p, kNv) + T(1))) * T(0.125 * kInvPi) * Lobe(p, h) / (k_h * max_cos);
     // Rounding can put k.h just above 1; (1 - k.h)^5 must not go negative.
     const T one_minus_kh = k_h < T(1) ? T(1) - k_h : T(0);
     const T schlick = one_minus_kh * one_minus_kh * one_minus_kh * one_minus_kh * one_minus_kh;
@@ -109,8 +110,8 @@ struct AshikhminShirley {
     const T diff_angular = (T(1) - a * a * a * a * a) * (T(1) - b * b * b * b * b) * T(28.0 / 23.0 * kInvPi);
     Rgb<T> f;
     for (int c = 0; c < 3; ++c) {
-      const T& rd = p[c];
-      const T& rs = p[3 + c];
+      const T& rd = At(p, kRd, c);
+      const T& rs = At(p, kRs, c);
       f[c] = rd * (T(1) - rs) * diff_angular + (rs + (T(1) - rs) * schlick) * spec;
     }
     return f;
@@ -123,7 +124,7 @@ struct AshikhminShirley {
     double pd, ps;
     LobeProbabilities(p, pd, ps);
     const Vec3<T> h = HalfVector(wi, wo);
-    const T spec = sqrt((p[6] + T(1)) * (p[7] + T(1))) * T(0.5 * kInvPi) * Lobe(p, h) / (T(4) * HalfCos(wi, wo));
+    const T spec = sqrt((At(p, kNu) + T(1)) * (At(p, kNv) + T(1))) * T(0.5 * kInvPi) * Lobe(p, h) / (T(4) * HalfCos(wi, wo));
     return T(pd) * wi.z() * T(kInvPi) + T(ps) * spec;
   }
 
@@ -140,7 +141,7 @@ struct AshikhminShirley {
       wi = Eigen::Vector3d(c.x(), c.y(), c.z());
     } else {
       const double v = std::min((u1 - pd) / ps, 1.0 - 1e-16);
-      const double nu = Value(p[6]), nv = Value(p[7]);
+      const double nu = Value(At(p, kNu)), nv = Value(At(p, kNv));
       // Eq. 9 over all four quadrants at once: tan(phi) = sqrt((nu+1)/(nv+1)) tan(psi).
       const double psi = 2.0 * kPi * u2;
       const double phi = std::atan2(std::sqrt(nu + 1.0) * std::sin(psi), std::sqrt(nv + 1.0) * std::cos(psi));
@@ -168,7 +169,7 @@ struct AshikhminShirley {
   static double Weights(const T* p, double& wd, double& ws) {
     wd = ws = 0;
     for (int c = 0; c < 3; ++c) {
-      const double rd = Value(p[c]), rs = Value(p[3 + c]);
+      const double rd = Value(At(p, kRd, c)), rs = Value(At(p, kRs, c));
       wd += rd * (1.0 - rs) / 3.0;
       ws += (rs + (1.0 - rs) / 21.0) / 3.0;
     }

@@ -13,13 +13,11 @@
 
 #include "brdf/model.h"
 #include "brdf/params.h"
-#include "validate/quadrature.h"
+#include "brdf/quadrature.h"
 #include "validate/sampling_check.h"
 
 namespace brdfkit {
 namespace {
-
-using validate::GaussLegendre;
 
 Eigen::Vector3d Dir(double theta, double phi) {
   return Eigen::Vector3d(std::sin(theta) * std::cos(phi), std::sin(theta) * std::sin(phi), std::cos(theta));

@@ -13,7 +13,7 @@
 #include "brdf/params.h"
 #include "brdf/torrance_sparrow.h"
 #include "brdf/ward.h"
-#include "validate/quadrature.h"
+#include "brdf/quadrature.h"
 #include "validate/sampling_check.h"
 
 namespace brdfkit {
@@ -38,7 +38,7 @@ std::vector<double> GradedBreaks(double scale, double end) {
 // the normal by `scale`, phi in 8 panels. g(theta, phi) -> value.
 double IntegrateAroundNormal(const std::function<double(double, double)>& g, double scale,
                              const std::function<double(double)>& theta_end = nullptr) {
-  static const validate::GaussLegendre gt(20), gp(16);
+  static const GaussLegendre gt(20), gp(16);
   double sum = 0;
   const int phi_panels = 8;
   for (int pp = 0; pp < phi_panels; ++pp) {

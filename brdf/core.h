@@ -18,6 +18,7 @@
 
 #include <algorithm>
 #include <cctype>
+#include <array>
 #include <cmath>
 #include <cstddef>
 #include <limits>
@@ -209,6 +210,49 @@ struct ModelInfo {
   }
 };
 
+// What a model's lobes are: a set of LobeKind flags, declared by the model
+// (static constexpr unsigned kKind) and read through Bxdf::Kind().
+struct LobeKind {
+  enum : unsigned {
+    kDiffuse = 1u << 0,       // spread over the whole hemisphere
+    kGlossy = 1u << 1,        // a peak of finite angular width (the model declares Width)
+    kSpecular = 1u << 2,      // a delta peak (mirror or refraction): no finite density
+    kTransmission = 1u << 3,  // scatters below the surface (a BTDF part)
+  };
+};
+
+// Angular width, in radians on the scale of a microfacet roughness alpha
+// (Walter 2007: a Beckmann lobe of rms slope alpha), of a model's narrowest
+// glossy lobe along the tangent x and y axes; zero when it has none. Declared
+// by the model as a function of its parameters (LobeWidth Width(const double* p) const).
+struct LobeWidth {
+  double x = 0, y = 0;
+  bool Any() const { return x > 0 && y > 0; }
+  double Min() const { return x < y ? x : y; }
+};
+
+// A Phong-type exponent n as a width: cos^n(theta) ~ exp(-n theta^2 / 2), the
+// Beckmann lobe with alpha^2 = 2 / (n + 2) (Walter 2007, sec. 5.2).
+inline double PhongExponentWidth(double n) { return std::sqrt(2.0 / (n + 2.0)); }
+
+// A named slot of the packed parameter vector: the first (or only) value of
+// the parameter `name`; a colour parameter holds r, g, b at offset, +1, +2.
+// Models read their parameters through these (At(p, kSlot), At(p, kSlot, c)),
+// and list them in kSlots, which a registry-wide test holds against Info().
+struct Slot {
+  const char* name;
+  std::size_t offset;
+  bool colour = false;
+};
+
+template <typename T>
+inline const T& At(const T* p, const Slot& s) { return p[s.offset]; }
+template <typename T>
+inline const T& At(const T* p, const Slot& s, int channel) { return p[s.offset + static_cast<std::size_t>(channel)]; }
+// A colour parameter as an RGB triple.
+template <typename T>
+inline Rgb<T> RgbAt(const T* p, const Slot& s) { return Rgb<T>(p[s.offset], p[s.offset + 1], p[s.offset + 2]); }
+
 // Options given when a model is built (file paths and the like).
 using Settings = std::map<std::string, std::string>;
 
@@ -279,6 +323,13 @@ class Bxdf {
   // then Sample returns invalid samples, Pdf 0, and the checks that need
   // them are skipped with a note).
   virtual bool CanSample() const { return true; }
+  // Declared traits (see brdf/model.h); the defaults are what a model that
+  // declares nothing is taken to be: of unknown kind (0), without a glossy
+  // lobe, with channels that may depend on each other.
+  virtual unsigned Kind() const { return 0; }
+  virtual LobeWidth Width(const double* /*p*/) const { return {}; }
+  // Channel c of f_r depends only on channel c of every colour parameter.
+  virtual bool ChannelsIndependent() const { return false; }
   virtual const MicrofacetView<T>* Microfacet() const { return nullptr; }
 };
 
@@ -376,5 +427,6 @@ inline std::string DidYouMean(const std::string& unknown, const std::vector<Know
 
 // Luminance-like mean of a colour parameter, for lobe selection weights.
 inline double MeanRgb(const double* c) { return (c[0] + c[1] + c[2]) / 3.0; }
+inline double MeanRgb(const double* p, const Slot& s) { return MeanRgb(p + s.offset); }
 
 }  // namespace brdfkit

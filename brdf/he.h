@@ -65,16 +65,7 @@
 // channel by He::SpecularReflectance. Checks of Eval therefore see only
 // rho_dd + rho_ud: the albedo they report leaves out that fraction.
 //
-// | param    | range        | default | meaning                                             |
-// |----------|--------------|---------|-----------------------------------------------------|
-// | sigma_0  | [1e-3, 10]   | 0.2     | rms surface height, micrometres (log scale)         |
-// | tau      | [0.05, 100]  | 2       | autocorrelation length, micrometres (log scale)     |
-// | n        | [0.05, 20]   | 1.5     | real part of the complex refractive index (colour)  |
-// | k        | [0, 20]      | 0.5     | imaginary part of the index (colour)                |
-// | lambda_r | [0.2, 2]     | 0.65    | wavelength of the red channel, micrometres          |
-// | lambda_g | [0.2, 2]     | 0.55    | wavelength of the green channel, micrometres        |
-// | lambda_b | [0.2, 2]     | 0.45    | wavelength of the blue channel, micrometres         |
-// | a        | [0, 1]       | 0.1     | uniform-diffuse reflectance (colour)                |
+// Parameters, ranges and defaults: Info() below (`brdfkit models`).
 //
 // The default k is 0.5, not 0: F depends on k through k^2, so k = 0 is a
 // stationary point from which a fit could not move k.
@@ -233,11 +224,24 @@ inline T HeLogSeries(const T& g, const T& c) {
 
 }  // namespace detail
 
-// Packed parameters: sigma_0, tau, n (r, g, b), k (r, g, b), lambda_r,
-// lambda_g, lambda_b, a (r, g, b).
 class He {
  public:
   explicit He(const Settings& = {}) {}
+
+  static constexpr Slot kSigma0{"sigma_0", 0}, kTau{"tau", 1}, kN{"n", 2, true}, kK{"k", 5, true},
+      kLambdaR{"lambda_r", 8}, kLambdaG{"lambda_g", 9}, kLambdaB{"lambda_b", 10}, kA{"a", 11, true};
+  static constexpr std::array kSlots{kSigma0, kTau, kN, kK, kLambdaR, kLambdaG, kLambdaB, kA};
+  static constexpr std::array<Slot, 3> kLambda{kLambdaR, kLambdaG, kLambdaB};  // per channel
+  static constexpr unsigned kKind = LobeKind::kDiffuse | LobeKind::kGlossy;
+  static constexpr bool kChannelsIndependent = true;
+  // The directional-diffuse lobe: Beckmann of alpha = 2 sigma_0 / tau for a
+  // rough surface (g >> 1), of the m = 1 term's lambda / (2 pi tau) for a
+  // smooth one, blended as the sampling mixture blends them (1 / (1 + g_0)).
+  LobeWidth Width(const double* p) const {
+    const Mixture m = MixtureOf(p);
+    const double w = (m.p_geo * m.alpha_geo + m.p_wave * m.alpha_wave) / (m.p_geo + m.p_wave);
+    return {w, w};
+  }
 
   static ModelInfo Info() {
     ModelInfo info;
@@ -261,17 +265,17 @@ class He {
   template <typename T>
   static T EffectiveRoughness(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) {
     using std::sqrt;
-    const T r = p[1] / (T(2) * p[0]);
+    const T r = At(p, kTau) / (T(2) * At(p, kSigma0));
     const T ki = detail::HeK(wi.z(), SafeSqrt(Sin2Theta(wi)), r);
     const T ko = detail::HeK(wo.z(), SafeSqrt(Sin2Theta(wo)), r);
     const T x = detail::HeZ0OverSigma(T((ki + ko) / T(4 * std::sqrt(kPi / 2))));
-    return p[0] / sqrt(T(1) + x * x);
+    return At(p, kSigma0) / sqrt(T(1) + x * x);
   }
 
   // Shadowing S(theta_i) S(theta_o).
   template <typename T>
   static T Shadowing(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) {
-    const T r = p[1] / (T(2) * p[0]);
+    const T r = At(p, kTau) / (T(2) * At(p, kSigma0));
     return detail::HeShadowing(wi.z(), SafeSqrt(Sin2Theta(wi)), r) *
            detail::HeShadowing(wo.z(), SafeSqrt(Sin2Theta(wo)), r);
   }
@@ -284,7 +288,7 @@ class He {
     using std::sqrt;
     Rgb<T> f = Rgb<T>::Constant(T(0));
     if (!SameUpperHemisphere(wi, wo)) return f;
-    const T& tau = p[1];
+    const T& tau = At(p, kTau);
     const Vec3<T> h = wi + wo;
     const T hh = h.squaredNorm();
     const T hz = h.z();
@@ -295,7 +299,7 @@ class He {
     // log of G / (pi cos_i cos_o) and the constant of D without 1 / lambda^2.
     const T log_common = T(2) * (log(hh) - log(hz)) - log(wi.z()) - log(wo.z()) + log(T(kPi / 4) * tau * tau);
     for (int c = 0; c < 3; ++c) {
-      const T& lambda = p[8 + c];
+      const T& lambda = At(p, kLambda[c]);
       const T k = T(2 * kPi) / lambda;
       const T s = k * sigma * hz;
       const T g = s * s;
@@ -303,7 +307,7 @@ class He {
       const T cc = k * k * hxy2 * tau * tau / T(4);
       const T log_series = detail::HeLogSeries(g, cc);
       if (!(Value(log_series) > -std::numeric_limits<double>::infinity())) continue;  // underflowed to 0
-      const T fresnel = FresnelConductor(p[2 + c], p[5 + c], cos_d);
+      const T fresnel = FresnelConductor(At(p, kN, c), At(p, kK, c), cos_d);
       f[c] = fresnel * shadow * exp(log_common + log_series - T(2) * log(lambda));
     }
     return f;
@@ -313,7 +317,7 @@ class He {
   Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const {
     if (!SameUpperHemisphere(wi, wo)) return Rgb<T>::Constant(T(0));
     Rgb<T> f = DirectionalDiffuse(p, wi, wo);
-    for (int c = 0; c < 3; ++c) f[c] += p[11 + c] * T(kInvPi);
+    for (int c = 0; c < 3; ++c) f[c] += At(p, kA, c) * T(kInvPi);
     return f;
   }
 
@@ -329,8 +333,8 @@ class He {
     const T sigma = EffectiveRoughness(p, wi, wo);
     const T shadow = Shadowing(p, wi, wo);
     for (int c = 0; c < 3; ++c) {
-      const T s = T(4 * kPi) * sigma * wi.z() / p[8 + c];
-      r[c] = FresnelConductor(p[2 + c], p[5 + c], wi.z()) * exp(-s * s) * shadow;
+      const T s = T(4 * kPi) * sigma * wi.z() / At(p, kLambda[c]);
+      r[c] = FresnelConductor(At(p, kN, c), At(p, kK, c), wi.z()) * exp(-s * s) * shadow;
     }
     return r;
   }
@@ -375,8 +379,8 @@ class He {
 
   double SampleWeight(const double* p) const {
     double s = 0;
-    for (int c = 0; c < 3; ++c) s += FresnelConductor(p[2 + c], p[5 + c], 1.0);
-    return s / 3.0 + MeanRgb(p + 11);
+    for (int c = 0; c < 3; ++c) s += FresnelConductor(At(p, kN, c), At(p, kK, c), 1.0);
+    return s / 3.0 + MeanRgb(p, kA);
   }
 
  private:
@@ -386,12 +390,12 @@ class He {
 
   template <typename T>
   static Mixture MixtureOf(const T* p) {
-    const double sigma0 = Value(p[0]), tau = Value(p[1]);
-    const double lambda = (Value(p[8]) + Value(p[9]) + Value(p[10])) / 3.0;
+    const double sigma0 = Value(At(p, kSigma0)), tau = Value(At(p, kTau));
+    const double lambda = (Value(At(p, kLambdaR)) + Value(At(p, kLambdaG)) + Value(At(p, kLambdaB))) / 3.0;
     double f0 = 0, a = 0;
     for (int c = 0; c < 3; ++c) {
-      f0 += FresnelConductor(Value(p[2 + c]), Value(p[5 + c]), 1.0) / 3.0;
-      a += Value(p[11 + c]) / 3.0;
+      f0 += FresnelConductor(Value(At(p, kN, c)), Value(At(p, kK, c)), 1.0) / 3.0;
+      a += Value(At(p, kA, c)) / 3.0;
     }
     const double g0 = std::pow(4 * kPi * sigma0 / lambda, 2);
     const double wd = a + 0.05, ws = f0;

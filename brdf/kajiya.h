@@ -31,13 +31,7 @@
 // (brushed or lathed metal: sigma_v << sigma_u):
 //   p(zeta_u, zeta_v) = exp(-zeta_u^2 / (2 sigma_u^2) - zeta_v^2 / (2 sigma_v^2)) / (2 pi sigma_u sigma_v).
 //
-// | param   | range       | default | meaning                                          |
-// |---------|-------------|---------|--------------------------------------------------|
-// | sigma_u | [1e-3, 2]   | 0.3     | rms slope across the grooves (log scale)         |
-// | sigma_v | [1e-3, 2]   | 0.1     | rms slope along the grooves (log scale)          |
-// | angle   | [0, pi]     | 0       | direction of u from the x axis (radians)         |
-// | n       | [0.05, 20]  | 1.5     | real part of the complex index (colour)          |
-// | k       | [0, 20]     | 0.5     | imaginary part (extinction), 0 for dielectrics (colour) |
+// Parameters, ranges and defaults: Info() below (`brdfkit models`).
 //
 // What is approximated (as in Kajiya's Kirchhoff evaluation):
 //  - tangent plane: the local field is the Fresnel reflection off the
@@ -71,10 +65,22 @@
 
 namespace brdfkit {
 
-// Packed parameters: sigma_u, sigma_v, angle, n (r, g, b), k (r, g, b).
 class Kajiya {
  public:
   explicit Kajiya(const Settings& = {}) {}
+
+  static constexpr Slot kSigmaU{"sigma_u", 0}, kSigmaV{"sigma_v", 1}, kAngle{"angle", 2}, kN{"n", 3, true},
+      kK{"k", 6, true};
+  static constexpr std::array kSlots{kSigmaU, kSigmaV, kAngle, kN, kK};
+  static constexpr unsigned kKind = LobeKind::kGlossy;
+  static constexpr bool kChannelsIndependent = true;
+  // Gaussian slopes of rms sigma are a Beckmann lobe with alpha = sqrt(2) sigma;
+  // along x and y the rms slope of the rotated ellipse is its marginal.
+  LobeWidth Width(const double* p) const {
+    const double su = At(p, kSigmaU), sv = At(p, kSigmaV);
+    const double c = std::cos(At(p, kAngle)), s = std::sin(At(p, kAngle));
+    return {std::sqrt(2.0 * (su * su * c * c + sv * sv * s * s)), std::sqrt(2.0 * (su * su * s * s + sv * sv * c * c))};
+  }
 
   static ModelInfo Info() {
     ModelInfo info;
@@ -96,7 +102,7 @@ class Kajiya {
   static void Slopes(const T* p, const Vec3<T>& m, T& zu, T& zv) {
     using std::cos;
     using std::sin;
-    const T c = cos(p[2]), s = sin(p[2]);
+    const T c = cos(At(p, kAngle)), s = sin(At(p, kAngle));
     zu = -(c * m.x() + s * m.y()) / m.z();
     zv = -(-s * m.x() + c * m.y()) / m.z();
   }
@@ -109,7 +115,7 @@ class Kajiya {
     if (m.z() <= T(0)) return T(0);  // back-facing normals do not exist on a height field
     T zu, zv;
     Slopes(p, m, zu, zv);
-    const T su = p[0], sv = p[1];
+    const T su = At(p, kSigmaU), sv = At(p, kSigmaV);
     const T e = T(0.5) * (zu * zu / (su * su) + zv * zv / (sv * sv));
     // Log form: exp(-e) and 1 / cos^4 overflow separately near the horizon.
     const T m2 = m.z() * m.z() / m.squaredNorm();
@@ -126,7 +132,7 @@ class Kajiya {
     const T scalar = D(p, m) / (T(4) * wi.z() * wo.z());
     const T cos_d = HalfCos(wi, wo);  // = wi.m; the dot product goes negative by rounding for opposite grazing pairs
     Rgb<T> f;
-    for (int c = 0; c < 3; ++c) f[c] = FresnelConductor(p[3 + c], p[6 + c], cos_d) * scalar;
+    for (int c = 0; c < 3; ++c) f[c] = FresnelConductor(At(p, kN, c), At(p, kK, c), cos_d) * scalar;
     return f;
   }
 
@@ -143,9 +149,9 @@ class Kajiya {
     if (wo.z() <= T(0)) return s;
     // Gaussian slopes by Box-Muller in the (u, v) frame; 1 - u1 keeps the log finite.
     const double r = std::sqrt(-2.0 * std::log1p(-u1));
-    const double zu = Value(p[0]) * r * std::cos(2 * kPi * u2);
-    const double zv = Value(p[1]) * r * std::sin(2 * kPi * u2);
-    const double c = std::cos(Value(p[2])), sn = std::sin(Value(p[2]));
+    const double zu = Value(At(p, kSigmaU)) * r * std::cos(2 * kPi * u2);
+    const double zv = Value(At(p, kSigmaV)) * r * std::sin(2 * kPi * u2);
+    const double c = std::cos(Value(At(p, kAngle))), sn = std::sin(Value(At(p, kAngle)));
     const double zx = c * zu - sn * zv, zy = sn * zu + c * zv;
     const Eigen::Vector3d m = Eigen::Vector3d(-zx, -zy, 1.0).normalized();
     Eigen::Vector3d wi;
@@ -155,7 +161,7 @@ class Kajiya {
 
   double SampleWeight(const double* p) const {
     double s = 0;
-    for (int c = 0; c < 3; ++c) s += FresnelConductor(p[3 + c], p[6 + c], 0.7);
+    for (int c = 0; c < 3; ++c) s += FresnelConductor(At(p, kN, c), At(p, kK, c), 0.7);
     return s / 3.0;
   }
 };

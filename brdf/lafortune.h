@@ -3,13 +3,7 @@
 //
 //   f_r = rho (n + 2) / (2 pi) max(0, cx wi_x wo_x + cy wi_y wo_y + cz wi_z wo_z)^n.
 //
-// | param | range       | default | meaning                                      |
-// |-------|-------------|---------|----------------------------------------------|
-// | rho   | [0, 1]      | 0.5     | lobe albedo scale (colour)                   |
-// | cx    | [-1, 1]     | -1      | weight of wi_x wo_x (x: tangent direction)   |
-// | cy    | [-1, 1]     | -1      | weight of wi_y wo_y                          |
-// | cz    | [-1, 1]     | 1       | weight of wi_z wo_z (z: normal)              |
-// | n     | [1e-3, 1e8] | 20      | lobe exponent, log scale (see brdf/phong.h)  |
+// Parameters, ranges and defaults: Info() below (`brdfkit models`).
 //
 // Relation to the paper's parameters: the paper writes a lobe as
 // [Cx ux vx + Cy uy vy + Cz uz vz]^n with its magnitude folded into C, so
@@ -47,6 +41,16 @@ namespace brdfkit {
 struct Lafortune {
   explicit Lafortune(const Settings& = {}) {}
 
+  static constexpr Slot kRho{"rho", 0, true}, kCx{"cx", 3}, kCy{"cy", 4}, kCz{"cz", 5}, kN{"n", 6};
+  static constexpr std::array kSlots{kRho, kCx, kCy, kCz, kN};
+  static constexpr unsigned kKind = LobeKind::kGlossy;
+  static constexpr bool kChannelsIndependent = true;
+  // The cos^n lobe about its axis; |c| < 1 only lowers it, not its width.
+  LobeWidth Width(const double* p) const {
+    const double w = PhongExponentWidth(At(p, kN));
+    return {w, w};
+  }
+
   static ModelInfo Info() {
     ModelInfo info;
     info.name = "lafortune";
@@ -64,18 +68,18 @@ struct Lafortune {
   template <typename T>
   Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const {
     if (!SameUpperHemisphere(wi, wo)) return Rgb<T>::Constant(T(0));
-    const T& n = p[6];
+    const T& n = At(p, kN);
     // wi_k wo_k first: the products commute exactly, so f(wi, wo) == f(wo, wi) bit for bit.
-    const T base = p[3] * (wi.x() * wo.x()) + p[4] * (wi.y() * wo.y()) + p[5] * (wi.z() * wo.z());
+    const T base = At(p, kCx) * (wi.x() * wo.x()) + At(p, kCy) * (wi.y() * wo.y()) + At(p, kCz) * (wi.z() * wo.z());
     const T lobe = (n + T(2)) * T(0.5 * kInvPi) * PowLobe(base, n);
-    return Rgb<T>(p[0], p[1], p[2]) * lobe;
+    return RgbAt(p, kRho) * lobe;
   }
 
   // Unit lobe axis c o wo / |c o wo|; false when it vanishes.
   template <typename T>
   static bool Axis(const T* p, const Vec3<T>& wo, Vec3<T>& axis) {
     using std::sqrt;
-    axis = Vec3<T>(p[3] * wo.x(), p[4] * wo.y(), p[5] * wo.z());
+    axis = Vec3<T>(At(p, kCx) * wo.x(), At(p, kCy) * wo.y(), At(p, kCz) * wo.z());
     const T len2 = axis.squaredNorm();
     if (len2 <= T(0)) return false;  // no axis: the lobe is zero everywhere
     axis /= sqrt(len2);
@@ -87,7 +91,7 @@ struct Lafortune {
     if (!SameUpperHemisphere(wi, wo)) return T(0);
     Vec3<T> axis;
     if (!Axis(p, wo, axis)) return T(0);
-    return CosinePowerLobePdf(axis, p[6], wi);
+    return CosinePowerLobePdf(axis, At(p, kN), wi);
   }
 
   template <typename T>
@@ -96,7 +100,7 @@ struct Lafortune {
     if (wo.z() <= T(0)) return s;
     Vec3<T> axis;
     if (!Axis(p, wo, axis)) return s;
-    s.wi = SampleCosinePowerLobe(axis, p[6], u1, u2);
+    s.wi = SampleCosinePowerLobe(axis, At(p, kN), u1, u2);
     if (s.wi.z() <= T(0)) return s;  // the lobe reaches below the horizon
     s.pdf = Pdf(p, wo, s.wi);
     s.valid = s.pdf > T(0);
@@ -105,8 +109,8 @@ struct Lafortune {
 
   // rho times max |c|^n, a bound on the lobe's albedo.
   double SampleWeight(const double* p) const {
-    const double c = std::max({std::abs(p[3]), std::abs(p[4]), std::abs(p[5])});
-    return MeanRgb(p) * std::pow(c, p[6]);
+    const double c = std::max({std::abs(At(p, kCx)), std::abs(At(p, kCy)), std::abs(At(p, kCz))});
+    return MeanRgb(p, kRho) * std::pow(c, At(p, kN));
   }
 };
 

@@ -1,8 +1,6 @@
 // Lambert: the ideal diffuse reflector, f_r = rho / pi.
 //
-// | param  | range  | default | meaning                         |
-// |--------|--------|---------|---------------------------------|
-// | albedo | [0, 1] | 0.5     | directional albedo (colour)     |
+// Parameters, ranges and defaults: Info() below (`brdfkit models`).
 //
 // Lambert 1760, "Photometria". E(wo) = rho for every wo. Sampling is
 // cosine-weighted (pdf = cos_theta_i / pi), exact importance sampling.
@@ -14,6 +12,11 @@ namespace brdfkit {
 
 struct Lambert : CosineSampling {
   explicit Lambert(const Settings& = {}) {}
+
+  static constexpr Slot kAlbedo{"albedo", 0, true};
+  static constexpr std::array kSlots{kAlbedo};
+  static constexpr unsigned kKind = LobeKind::kDiffuse;
+  static constexpr bool kChannelsIndependent = true;
 
   static ModelInfo Info() {
     ModelInfo info;
@@ -28,10 +31,10 @@ struct Lambert : CosineSampling {
   template <typename T>
   Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const {
     if (!SameUpperHemisphere(wi, wo)) return Rgb<T>::Constant(T(0));
-    return Rgb<T>(p[0], p[1], p[2]) * T(kInvPi);
+    return RgbAt(p, kAlbedo) * T(kInvPi);
   }
 
-  double SampleWeight(const double* p) const { return MeanRgb(p); }
+  double SampleWeight(const double* p) const { return MeanRgb(p, kAlbedo); }
 };
 
 }  // namespace brdfkit

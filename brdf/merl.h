@@ -425,12 +425,14 @@ class Merl : public CosineSampling {
       throw ModelError(e.what());
     }
     weight_ = EstimateAlbedo();
+    width_ = EstimateWidth();
   }
 
   Merl(std::shared_ptr<const MerlTable> table, bool trilinear) : table_(std::move(table)), trilinear_(trilinear) {
     if (!table_ || table_->values.size() != 3 * MerlTable::kCells)
       throw ModelError("model 'merl': the table must hold 3 x 90 x 90 x 180 values");
     weight_ = EstimateAlbedo();
+    width_ = EstimateWidth();
   }
 
   static ModelInfo Info() {
@@ -442,6 +444,12 @@ class Merl : public CosineSampling {
     info.settings = {"path", "interp"};
     return info;
   }
+
+  // Measured: whatever the table holds, taken as a diffuse part and a
+  // glossy peak whose width is measured once from the table (Width).
+  static constexpr unsigned kKind = LobeKind::kDiffuse | LobeKind::kGlossy;
+  static constexpr bool kChannelsIndependent = true;  // no parameters
+  LobeWidth Width(const double*) const { return {width_, width_}; }
 
   const MerlTable& Table() const { return *table_; }
   bool Trilinear() const { return trilinear_; }
@@ -477,9 +485,29 @@ class Merl : public CosineSampling {
     return std::max(sum / count, 0.0);
   }
 
+  // Half-vector angle (radians) where the mean of f_r cos_i at normal view
+  // falls to half its value at the mirror direction, by bisection along x;
+  // 1 (a broad lobe) when it does not fall that far within 80 degrees.
+  double EstimateWidth() const {
+    const Eigen::Vector3d wo(0, 0, 1);
+    const auto g = [&](double t) {
+      const Eigen::Vector3d wi(std::sin(2 * t), 0, std::cos(2 * t));
+      return table_->Lookup(wi, wo, trilinear_).mean() * wi.z();
+    };
+    const double g0 = g(0);
+    if (!(g0 > 0) || g(0.7) >= 0.5 * g0) return 1.0;
+    double lo = 0, hi = 0.7;
+    for (int i = 0; i < 50; ++i) {
+      const double mid = 0.5 * (lo + hi);
+      (g(mid) >= 0.5 * g0 ? lo : hi) = mid;
+    }
+    return std::max(hi, 1e-4);  // below the table's resolution in theta_h
+  }
+
   std::shared_ptr<const MerlTable> table_;
   bool trilinear_ = false;
   double weight_ = 0;
+  double width_ = 1;
 };
 
 }  // namespace brdfkit

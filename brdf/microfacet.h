@@ -157,6 +157,29 @@ class MicrofacetModel {
 
   explicit MicrofacetModel(const Settings& = {}) {}
 
+  static constexpr Slot kAlphaX{Config::kAniso ? "alpha_x" : "alpha", 0};
+  static constexpr Slot kAlphaY{Config::kAniso ? "alpha_y" : "alpha", kRoughnessSlots - 1};
+  // Fresnel: f0 (Schlick), eta (dielectric), or eta and k (conductor).
+  static constexpr Slot kF0{"f0", kRoughnessSlots, true};
+  static constexpr Slot kEta{"eta", kRoughnessSlots, Config::kFresnel == FresnelForm::kConductor};
+  static constexpr Slot kK{"k", kRoughnessSlots + 3, true};
+  static constexpr auto kSlots = [] {
+    constexpr Slot r = kAlphaY;
+    if constexpr (Config::kFresnel == FresnelForm::kSchlick) {
+      if constexpr (Config::kAniso) return std::array{kAlphaX, r, kF0};
+      else return std::array{kAlphaX, kF0};
+    } else if constexpr (Config::kFresnel == FresnelForm::kDielectric) {
+      if constexpr (Config::kAniso) return std::array{kAlphaX, r, kEta};
+      else return std::array{kAlphaX, kEta};
+    } else {
+      if constexpr (Config::kAniso) return std::array{kAlphaX, r, kEta, kK};
+      else return std::array{kAlphaX, kEta, kK};
+    }
+  }();
+  static constexpr unsigned kKind = LobeKind::kGlossy;
+  static constexpr bool kChannelsIndependent = true;
+  LobeWidth Width(const double* p) const { return {At(p, kAlphaX), At(p, kAlphaY)}; }
+
   static ModelInfo Info() {
     ModelInfo info;
     info.name = Derived::kName;
@@ -185,8 +208,8 @@ class MicrofacetModel {
 
   template <typename T>
   void Roughness(const T* p, T& ax, T& ay) const {
-    ax = p[0];
-    ay = Config::kAniso ? p[1] : p[0];
+    ax = At(p, kAlphaX);
+    ay = At(p, kAlphaY);
   }
 
   template <typename T>
@@ -222,12 +245,11 @@ class MicrofacetModel {
 
   template <typename T>
   Rgb<T> Fresnel(const T* p, const T& cos_theta) const {
-    const T* f = p + kRoughnessSlots;
     Rgb<T> F;
     for (int c = 0; c < 3; ++c) {
-      if constexpr (Config::kFresnel == FresnelForm::kSchlick) F[c] = FresnelSchlick(f[c], cos_theta);
-      else if constexpr (Config::kFresnel == FresnelForm::kDielectric) F[c] = FresnelDielectric(f[0], cos_theta);
-      else F[c] = FresnelConductor(f[c], f[3 + c], cos_theta);
+      if constexpr (Config::kFresnel == FresnelForm::kSchlick) F[c] = FresnelSchlick(At(p, kF0, c), cos_theta);
+      else if constexpr (Config::kFresnel == FresnelForm::kDielectric) F[c] = FresnelDielectric(At(p, kEta), cos_theta);
+      else F[c] = FresnelConductor(At(p, kEta, c), At(p, kK, c), cos_theta);
     }
     return F;
   }
@@ -291,14 +313,13 @@ class MicrofacetModel {
   }
 
   double SampleWeight(const double* p) const {
-    const double* f = p + kRoughnessSlots;
     if constexpr (Config::kFresnel == FresnelForm::kSchlick) {
-      return MeanRgb(f) + (1.0 - MeanRgb(f)) / 21.0;  // hemispherical average of Schlick
+      return MeanRgb(p, kF0) + (1.0 - MeanRgb(p, kF0)) / 21.0;  // hemispherical average of Schlick
     } else if constexpr (Config::kFresnel == FresnelForm::kDielectric) {
-      return FresnelDielectric(f[0], 0.5);
+      return FresnelDielectric(At(p, kEta), 0.5);
     } else {
       double s = 0;
-      for (int c = 0; c < 3; ++c) s += FresnelConductor(f[c], f[3 + c], 0.5);
+      for (int c = 0; c < 3; ++c) s += FresnelConductor(At(p, kEta, c), At(p, kK, c), 0.5);
       return s / 3.0;
     }
   }

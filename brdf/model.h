@@ -10,10 +10,17 @@
 //   template <class T> BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const;
 //   template <class T> T Pdf(const T* p, const Vec3<T>& wo, const Vec3<T>& wi) const;
 //     (both or neither; without them the sampling checks are skipped)
+//   static constexpr unsigned kKind;   // LobeKind flags: diffuse, glossy, specular, transmission
+// and optionally
+//   static constexpr std::array<Slot, N> kSlots;  // its parameters by name (see Slot)
+//   LobeWidth Width(const double* p) const;       // required when kKind has kGlossy
+//   static constexpr bool kChannelsIndependent;   // channel c reads only channel c (default false)
 //   double SampleWeight(const double* p) const;                  // lobe choice in sums
 //   template <class T> T D(const T* p, const Vec3<T>& wm) const;  // microfacet models
 //   template <class T> T G1(const T* p, const Vec3<T>& w, const Vec3<T>& wm) const;  // Smith
-// and is listed once in registry.h.
+// and is listed once in registry.h. The traits are read in one place,
+// detail::Traits below, and reach the tools through Bxdf::Kind, Width and
+// ChannelsIndependent.
 #pragma once
 
 #include "brdf/batch.h"
@@ -21,13 +28,51 @@
 #include "brdf/registry.h"
 
 #include <algorithm>
+#include <array>
+#include <concepts>
 #include <sstream>
 #include <string_view>
+#include <typeindex>
+#include <typeinfo>
 #include <utility>
 
 namespace brdfkit {
 
+// What a registered model declares about itself, without building it (a
+// model with settings may need a file): its kind, whether its channels are
+// independent, and the named slots it reads its parameters through (empty
+// for a model without parameters). All zero for an unknown name.
+struct DeclaredTraits {
+  unsigned kind = 0;
+  bool channels_independent = false;
+  std::vector<Slot> slots;
+};
+
 namespace detail {
+
+// The one reader of a model's declared traits.
+template <typename M>
+struct Traits {
+  static_assert(requires { M::kKind; }, "a model declares its kind: static constexpr unsigned kKind = LobeKind::...");
+  static constexpr unsigned kKind = M::kKind;
+  static constexpr bool kHasWidth = requires(const M& m, const double* p) {
+    { m.Width(p) } -> std::same_as<LobeWidth>;
+  };
+  static_assert(kHasWidth || !(kKind & LobeKind::kGlossy),
+                "a glossy model declares its lobe width: LobeWidth Width(const double* p) const");
+  static constexpr bool kChannelsIndependent = [] {
+    if constexpr (requires { M::kChannelsIndependent; }) return bool(M::kChannelsIndependent);
+    return false;
+  }();
+  static std::vector<Slot> Slots() {
+    if constexpr (requires { M::kSlots; }) return std::vector<Slot>(M::kSlots.begin(), M::kSlots.end());
+    return {};
+  }
+  static LobeWidth Width(const M& m, const double* p) {
+    if constexpr (kHasWidth) return m.Width(p);
+    return {};
+  }
+};
 
 template <typename M, typename T>
 class MicrofacetAdapter final : public MicrofacetView<T> {
@@ -90,6 +135,9 @@ class ModelAdapter final : public Bxdf<T> {
     }
   }
   const MicrofacetView<T>* Microfacet() const override { return micro_.get(); }
+  unsigned Kind() const override { return Traits<M>::kKind; }
+  LobeWidth Width(const double* p) const override { return Traits<M>::Width(*m_, p); }
+  bool ChannelsIndependent() const override { return Traits<M>::kChannelsIndependent; }
 
  private:
   std::shared_ptr<const M> m_;
@@ -163,6 +211,28 @@ class SumBxdf final : public Bxdf<T> {
   bool CanSample() const override {
     return std::all_of(lobes_.begin(), lobes_.end(), [](const auto& l) { return l->CanSample(); });
   }
+  unsigned Kind() const override {
+    unsigned k = 0;
+    for (const auto& l : lobes_) k |= l->Kind();
+    return k;
+  }
+  // The narrowest lobe of the sum along each axis.
+  LobeWidth Width(const double* p) const override {
+    LobeWidth w;
+    const auto take = [](double& cur, double v) { cur = cur > 0 ? std::min(cur, v) : v; };
+    for (std::size_t k = 0; k < lobes_.size(); ++k) {
+      const LobeWidth l = lobes_[k]->Width(p + offsets_[k]);
+      if (!l.Any()) continue;
+      take(w.x, l.x);
+      take(w.y, l.y);
+    }
+    return w;
+  }
+  bool ChannelsIndependent() const override {
+    for (const auto& l : lobes_)
+      if (!l->ChannelsIndependent()) return false;
+    return true;
+  }
 
  private:
   std::vector<double> Weights(const T* p) const {
@@ -199,16 +269,76 @@ bool ForEachModelType(F&& f) {
   return false;
 }
 
+template <typename T>
+using MakeFn = std::unique_ptr<Bxdf<T>> (*)(const std::shared_ptr<const void>&, const ModelInfo&);
+
+template <typename M, typename T>
+std::unique_ptr<Bxdf<T>> MakeAdapter(const std::shared_ptr<const void>& impl, const ModelInfo& info) {
+  return std::make_unique<ModelAdapter<M, T>>(std::static_pointer_cast<const M>(impl), info);
+}
+
+// A model added at run time by RegisterModel: its table, its constructor and
+// its adapters for the scalar types it was registered with (MakeFn<T> by
+// typeid(T), stored as a plain function pointer).
+struct ExtensionModel {
+  ModelInfo info;
+  DeclaredTraits traits;
+  std::shared_ptr<const void> (*construct)(const Settings&) = nullptr;
+  std::map<std::type_index, void (*)()> make;
+};
+
+inline std::vector<ExtensionModel>& ExtensionModels() {
+  static std::vector<ExtensionModel> models;
+  return models;
+}
+
 }  // namespace detail
 
-// Static description of every registered model, in registration order.
+// Static description of every registered model: the list in registry.h,
+// then those added by RegisterModel, in registration order.
 inline std::vector<ModelInfo> RegisteredModelInfos() {
   std::vector<ModelInfo> out;
   detail::ForEachModelType([&](std::size_t, auto* tag) {
     out.push_back(std::remove_pointer_t<decltype(tag)>::Info());
     return false;
   });
+  for (const detail::ExtensionModel& e : detail::ExtensionModels()) out.push_back(e.info);
   return out;
+}
+
+// The declared traits of the registered model `model_name`.
+inline DeclaredTraits TraitsOf(const std::string& model_name) {
+  DeclaredTraits out;
+  detail::ForEachModelType([&](std::size_t, auto* tag) {
+    using M = std::remove_pointer_t<decltype(tag)>;
+    if (M::Info().name != model_name) return false;
+    out = {detail::Traits<M>::kKind, detail::Traits<M>::kChannelsIndependent, detail::Traits<M>::Slots()};
+    return true;
+  });
+  for (const detail::ExtensionModel& e : detail::ExtensionModels())
+    if (e.info.name == model_name) out = e.traits;
+  return out;
+}
+
+// Adds model M (the members of a registry.h model) to the registered models
+// from outside brdf/registry.h, compiled for the scalar types Scalars...
+// (typically double, float and the ceres::Jet sizes the tools use; see
+// BRDFKIT_REGISTER_MODEL in fit/register_model.h). Called before main, from
+// a static initialiser of the program that links it in. Throws ModelError
+// when the name is taken.
+template <typename M, typename... Scalars>
+bool RegisterModel() {
+  detail::ExtensionModel e;
+  e.info = M::Info();
+  for (const ModelInfo& i : RegisteredModelInfos())
+    if (i.name == e.info.name) throw ModelError("model '" + e.info.name + "' is registered twice");
+  e.traits = {detail::Traits<M>::kKind, detail::Traits<M>::kChannelsIndependent, detail::Traits<M>::Slots()};
+  e.construct = [](const Settings& s) -> std::shared_ptr<const void> { return std::make_shared<const M>(s); };
+  (e.make.emplace(std::type_index(typeid(Scalars)),
+                  reinterpret_cast<void (*)()>(static_cast<detail::MakeFn<Scalars>>(&detail::MakeAdapter<M, Scalars>))),
+   ...);
+  detail::ExtensionModels().push_back(std::move(e));
+  return true;
 }
 
 // A parsed model specification. Copies share the loaded model data.
@@ -262,6 +392,22 @@ class Model {
         lobe.impl = std::make_shared<const M>(s);
         return true;
       });
+      for (std::size_t k = 0; !found && k < detail::ExtensionModels().size(); ++k) {
+        const detail::ExtensionModel& e = detail::ExtensionModels()[k];
+        if (e.info.name != name) continue;
+        if (!arg.empty()) {
+          if (e.info.settings.empty())
+            throw ModelError("model '" + name + "' takes no ':' argument (got '" + arg + "')");
+          s[e.info.settings.front()] = arg;
+        }
+        for (const auto& [key, v] : s)
+          if (std::find(e.info.settings.begin(), e.info.settings.end(), key) == e.info.settings.end())
+            throw ModelError("model '" + name + "' has no setting '" + key + "'");
+        lobe.index = std::tuple_size_v<RegisteredModels> + k;
+        lobe.info = e.info;
+        lobe.impl = e.construct(s);
+        found = true;
+      }
       if (!found)
         throw ModelError("unknown model '" + name + "'" + (parts.size() > 1 ? " in '" + spec + "'" : "") +
                          " (known models: " + KnownNames() + ")" + DidYouMean(name, KnownModelNames()));
@@ -309,10 +455,15 @@ class Model {
     detail::ForEachModelType([&](std::size_t index, auto* tag) {
       using M = std::remove_pointer_t<decltype(tag)>;
       if (index != l.index) return false;
-      out = std::make_unique<detail::ModelAdapter<M, T>>(std::static_pointer_cast<const M>(l.impl), info);
+      out = detail::MakeAdapter<M, T>(l.impl, info);
       return true;
     });
-    return out;
+    if (out) return out;
+    const detail::ExtensionModel& e = detail::ExtensionModels().at(l.index - std::tuple_size_v<RegisteredModels>);
+    const auto make = e.make.find(std::type_index(typeid(T)));
+    if (make == e.make.end())
+      throw ModelError("model '" + e.info.name + "' was not registered for the scalar type " + typeid(T).name());
+    return reinterpret_cast<detail::MakeFn<T>>(make->second)(l.impl, info);
   }
 
   void BuildInfo() {

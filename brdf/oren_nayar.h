@@ -9,10 +9,7 @@
 //   A = 1 - 0.5 s^2 / (s^2 + 0.33),  B = 0.45 s^2 / (s^2 + 0.09),  s = sigma,
 //   alpha = max(theta_i, theta_o),  beta = min(theta_i, theta_o).
 //
-// | param  | range      | default | meaning                                      |
-// |--------|------------|---------|----------------------------------------------|
-// | albedo | [0, 1]     | 0.5     | facet albedo rho (colour)                    |
-// | sigma  | [0, pi/2]  | 0.35    | std. deviation of the facet slope angle, rad |
+// Parameters, ranges and defaults: Info() below (`brdfkit models`).
 //
 // Approximations made (by the paper, and here):
 //  - eq. 30 is Oren & Nayar's simplification of their fuller fitted model:
@@ -41,10 +38,7 @@
 //   s = wi.wo - cos_theta_i cos_theta_o   (= wi_xy . wo_xy, signed),
 //   t = 1 if s <= 0, else max(cos_theta_i, cos_theta_o).
 //
-// | param  | range  | default | meaning                                          |
-// |--------|--------|---------|--------------------------------------------------|
-// | albedo | [0, 1] | 0.5     | rho (colour); E(theta_o -> 90 deg) = rho exactly |
-// | sigma  | [0, 1] | 0.5     | weight of the non-diffuse term (B / A)           |
+// Parameters, ranges and defaults: Info() below (`brdfkit models`).
 //
 // sigma is Fujii's mixing ratio, not a slope angle. Its upper bound is 1
 // because s/t reaches -1 (both directions grazing, opposite azimuths), where
@@ -74,9 +68,14 @@ inline T OrenNayarAzimuthTerm(const Vec3<T>& wi, const Vec3<T>& wo) {
   return s / t;
 }
 
-// Shared by both variants: cosine-weighted sampling, albedo as lobe weight.
+// Shared by both variants: the parameters, cosine-weighted sampling, albedo
+// as lobe weight.
 struct CosineSampledDiffuse : CosineSampling {
-  double SampleWeight(const double* p) const { return MeanRgb(p); }
+  static constexpr Slot kAlbedo{"albedo", 0, true}, kSigma{"sigma", 3};
+  static constexpr std::array kSlots{kAlbedo, kSigma};
+  static constexpr unsigned kKind = LobeKind::kDiffuse;
+  static constexpr bool kChannelsIndependent = true;
+  double SampleWeight(const double* p) const { return MeanRgb(p, kAlbedo); }
 };
 
 struct OrenNayar : CosineSampledDiffuse {
@@ -105,10 +104,10 @@ struct OrenNayar : CosineSampledDiffuse {
   Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const {
     if (!SameUpperHemisphere(wi, wo)) return Rgb<T>::Constant(T(0));
     T a, b;
-    Coefficients(p[3], a, b);
+    Coefficients(At(p, kSigma), a, b);
     const T g = OrenNayarAzimuthTerm(wi, wo);
     const T shape = g > T(0) ? T(a + b * g) : a;  // max(0, cos(phi_i - phi_o))
-    return Rgb<T>(p[0], p[1], p[2]) * T(kInvPi) * shape;
+    return RgbAt(p, kAlbedo) * T(kInvPi) * shape;
   }
 };
 
@@ -136,11 +135,11 @@ struct OrenNayarFujii : CosineSampledDiffuse {
   Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const {
     if (!SameUpperHemisphere(wi, wo)) return Rgb<T>::Constant(T(0));
     T a, b;
-    Coefficients(p[3], a, b);
+    Coefficients(At(p, kSigma), a, b);
     const T s = wi.x() * wo.x() + wi.y() * wo.y();
     // t = 1 where s <= 0, so s / t is s itself there.
     const T s_over_t = s > T(0) ? OrenNayarAzimuthTerm(wi, wo) : s;
-    return Rgb<T>(p[0], p[1], p[2]) * (a + b * s_over_t);
+    return RgbAt(p, kAlbedo) * (a + b * s_over_t);
   }
 };
 

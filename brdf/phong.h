@@ -8,9 +8,7 @@
 //
 // Exponent n, shared by all three (and by lafortune):
 //
-// | param | range       | default | meaning                                   |
-// |-------|-------------|---------|-------------------------------------------|
-// | n     | [1e-3, 1e8] | 20      | lobe exponent; fitted on a log scale      |
+// Parameters, ranges and defaults: Info() below (`brdfkit models`).
 //
 // A fit moves n on a log scale (exponents of measured materials span 1 to
 // 1e5), which needs a positive lower bound: 1e-3. A lobe with n = 1e-3 is
@@ -26,9 +24,7 @@
 //
 //   f_r = ks cos^n(alpha) / cos(theta_i).
 //
-// | param | range  | default | meaning                          |
-// |-------|--------|---------|----------------------------------|
-// | ks    | [0, 1] | 0.5     | specular coefficient W (colour)  |
+// Parameters, ranges and defaults: Info() below (`brdfkit models`).
 //
 // NOT reciprocal (f(wi, wo) / f(wo, wi) = cos_theta_o / cos_theta_i) and NOT
 // energy-conserving: at normal view the albedo is ks 2 pi / (n + 1), above 1
@@ -45,9 +41,7 @@
 //
 //   f_r = ks (n + 2) / (2 pi) cos^n(alpha).
 //
-// | param | range  | default | meaning                                        |
-// |-------|--------|---------|------------------------------------------------|
-// | ks    | [0, 1] | 0.5     | directional albedo at normal view (colour)     |
+// Parameters, ranges and defaults: Info() below (`brdfkit models`).
 //
 // Reciprocal and energy-conserving: the albedo is ks exactly at normal view
 // and smaller elsewhere (part of the lobe falls below the horizon). The
@@ -64,9 +58,7 @@
 //
 //   f_r = ks (n + 8) / (8 pi) cos^n(theta_h).
 //
-// | param | range  | default | meaning                                |
-// |-------|--------|---------|----------------------------------------|
-// | ks    | [0, 1] | 0.5     | specular colour (colour)               |
+// Parameters, ranges and defaults: Info() below (`brdfkit models`).
 //
 // Approximation: (n + 8) / (8 pi) is an approximation of the factor that
 // would make the albedo at normal view equal ks; the exact albedo there is
@@ -87,14 +79,27 @@ inline ParamInfo PhongExponentParam() {
   return {"n", 1e-3, 1e8, 20.0, false, "lobe exponent (larger: narrower lobe)", ParamInfo::Scale::kLog};
 }
 
+// The parameters and traits shared by the three Phong lobes: a colour
+// weight and the exponent n; the lobe is glossy with width ~ sqrt(2 / (n + 2)).
+struct PhongLobe {
+  static constexpr Slot kKs{"ks", 0, true}, kN{"n", 3};
+  static constexpr std::array kSlots{kKs, kN};
+  static constexpr unsigned kKind = LobeKind::kGlossy;
+  static constexpr bool kChannelsIndependent = true;
+  LobeWidth Width(const double* p) const {
+    const double w = PhongExponentWidth(At(p, kN));
+    return {w, w};
+  }
+};
+
 // Pdf and sampling of a cos^n lobe around the mirror direction of wo, for
-// Phong lobes whose exponent is p[3].
-struct MirrorLobeSampling {
+// the Phong lobes.
+struct MirrorLobeSampling : PhongLobe {
   template <typename T>
   BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const {
     BsdfSample<T> s;
     if (wo.z() <= T(0)) return s;
-    s.wi = SampleCosinePowerLobe(Vec3<T>(Reflect(wo)), p[3], u1, u2);
+    s.wi = SampleCosinePowerLobe(Vec3<T>(Reflect(wo)), At(p, kN), u1, u2);
     if (s.wi.z() <= T(0)) return s;  // the lobe reaches below the horizon
     s.pdf = Pdf(p, wo, s.wi);
     s.valid = s.pdf > T(0);
@@ -104,7 +109,7 @@ struct MirrorLobeSampling {
   template <typename T>
   T Pdf(const T* p, const Vec3<T>& wo, const Vec3<T>& wi) const {
     if (!SameUpperHemisphere(wi, wo)) return T(0);
-    return CosinePowerLobePdf(Vec3<T>(Reflect(wo)), p[3], wi);
+    return CosinePowerLobePdf(Vec3<T>(Reflect(wo)), At(p, kN), wi);
   }
 };
 
@@ -124,14 +129,14 @@ struct PhongOriginal : MirrorLobeSampling {
   template <typename T>
   Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const {
     if (!SameUpperHemisphere(wi, wo)) return Rgb<T>::Constant(T(0));
-    const T lobe = PowLobe(T(Reflect(wi).dot(wo)), p[3]);
+    const T lobe = PowLobe(T(Reflect(wi).dot(wo)), At(p, kN));
     // 1/cos diverges at the horizon; the floor keeps float derivatives finite.
     const T cos_i = wi.z() > T(1e-15) ? wi.z() : T(1e-15);
-    return Rgb<T>(p[0], p[1], p[2]) * (lobe / cos_i);
+    return RgbAt(p, kKs) * (lobe / cos_i);
   }
 
   // Albedo at normal view, ks 2 pi / (n + 1).
-  double SampleWeight(const double* p) const { return MeanRgb(p) * 2.0 * kPi / (p[3] + 1.0); }
+  double SampleWeight(const double* p) const { return MeanRgb(p, kKs) * 2.0 * kPi / (At(p, kN) + 1.0); }
 };
 
 struct Phong : MirrorLobeSampling {
@@ -150,15 +155,15 @@ struct Phong : MirrorLobeSampling {
   template <typename T>
   Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const {
     if (!SameUpperHemisphere(wi, wo)) return Rgb<T>::Constant(T(0));
-    const T& n = p[3];
+    const T& n = At(p, kN);
     const T lobe = (n + T(2)) * T(0.5 * kInvPi) * PowLobe(T(Reflect(wi).dot(wo)), n);
-    return Rgb<T>(p[0], p[1], p[2]) * lobe;
+    return RgbAt(p, kKs) * lobe;
   }
 
-  double SampleWeight(const double* p) const { return MeanRgb(p); }
+  double SampleWeight(const double* p) const { return MeanRgb(p, kKs); }
 };
 
-struct BlinnPhong {
+struct BlinnPhong : PhongLobe {
   explicit BlinnPhong(const Settings& = {}) {}
 
   static ModelInfo Info() {
@@ -174,10 +179,10 @@ struct BlinnPhong {
   template <typename T>
   Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const {
     if (!SameUpperHemisphere(wi, wo)) return Rgb<T>::Constant(T(0));
-    const T& n = p[3];
+    const T& n = At(p, kN);
     const Vec3<T> h = HalfVector(wi, wo);
     const T lobe = (n + T(8)) * T(0.125 * kInvPi) * PowLobe(h.z(), n);
-    return Rgb<T>(p[0], p[1], p[2]) * lobe;
+    return RgbAt(p, kKs) * lobe;
   }
 
   template <typename T>
@@ -186,14 +191,14 @@ struct BlinnPhong {
     const Vec3<T> h = HalfVector(wi, wo);
     // wo.h = |wi + wo| / 2 >= (cos_theta_i + cos_theta_o) / 2 > 0 here, computed
     // so: the dot product with h can round negative for opposite grazing pairs.
-    return (p[3] + T(1)) * T(0.5 * kInvPi) * PowLobe(h.z(), p[3]) / (T(4) * HalfCos(wi, wo));
+    return (At(p, kN) + T(1)) * T(0.5 * kInvPi) * PowLobe(h.z(), At(p, kN)) / (T(4) * HalfCos(wi, wo));
   }
 
   template <typename T>
   BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const {
     BsdfSample<T> s;
     if (wo.z() <= T(0)) return s;
-    const Vec3<T> h = SampleCosinePowerLobe(Vec3<T>(T(0), T(0), T(1)), p[3], u1, u2);
+    const Vec3<T> h = SampleCosinePowerLobe(Vec3<T>(T(0), T(0), T(1)), At(p, kN), u1, u2);
     const T wo_h = wo.dot(h);
     if (wo_h <= T(0)) return s;  // h faces away from wo: no reflection
     s.wi = h * T(T(2) * wo_h) - wo;
@@ -203,7 +208,7 @@ struct BlinnPhong {
     return s;
   }
 
-  double SampleWeight(const double* p) const { return MeanRgb(p); }
+  double SampleWeight(const double* p) const { return MeanRgb(p, kKs); }
 };
 
 }  // namespace brdfkit

@@ -12,7 +12,7 @@
 #include "brdf/params.h"
 #include "brdf/poulin_fournier.h"
 #include "tests/test_util.h"
-#include "validate/quadrature.h"
+#include "brdf/quadrature.h"
 
 namespace brdfkit {
 namespace {
@@ -70,7 +70,7 @@ TEST(He, SeriesMatchesBruteForceAcrossBothEvaluations) {
 TEST(He, NormalIncidenceMatchesTheExponentialIntegral) {
   const Model m = Model::Parse("he");
   const auto b = m.Make<double>();
-  const validate::GaussLegendre gl(40);
+  const GaussLegendre gl(40);
   const Eigen::Vector3d n(0, 0, 1);
   for (double sigma0 : {0.005, 0.05, 0.2, 1.0}) {
     const std::vector<double> p = ParseParams(m.Info(), "sigma_0=" + std::to_string(sigma0) +
@@ -130,7 +130,7 @@ TEST(He, DirectionalDiffusePlusSpecularConservesTheFresnelPower) {
   const Model m = Model::Parse("he");
   const auto b = m.Make<double>();
   const Eigen::Vector3d n(0, 0, 1);
-  const validate::GaussLegendre gl(24);
+  const GaussLegendre gl(24);
   for (const char* text : {"sigma_0=0.02,tau=5", "sigma_0=0.05,tau=5", "sigma_0=0.1,tau=10", "sigma_0=0.05,tau=20"}) {
     const std::vector<double> p = ParseParams(m.Info(), std::string(text) + ",n=1.5:2:1.2,k=0:1:3,a=0");
     const Rgb<double> spec = He::SpecularReflectance(p.data(), n);
@@ -482,7 +482,7 @@ TEST(PoulinFournier, FlatLimitIsThePlanePhong) {
 TEST(PoulinFournier, SpecularQuadratureAccuracy) {
   const Model m = Model::Parse("poulin_fournier");
   const auto b = m.Make<double>();
-  const validate::GaussLegendre gl(8);
+  const GaussLegendre gl(8);
   std::mt19937_64 rng(21);
   double worst = 0;
   for (double e : {1.0, 10.0, 100.0, 1e3, 1e4}) {

@@ -56,14 +56,7 @@
 // intervals. Measured against a 4000-panel reference (physical_models_test.cpp)
 // the relative error is below 1e-10 for e from 1 to 1e4.
 //
-// | param | range      | default | meaning                                          |
-// |-------|------------|---------|--------------------------------------------------|
-// | kd    | [0, 1]     | 0.1     | diffuse reflectance of the material (colour)     |
-// | ks    | [0, 1]     | 0.5     | Phong specular albedo at normal view (colour)    |
-// | e     | [1, 1e4]   | 50      | Phong exponent (log scale)                       |
-// | d     | [0, 10]    | 0.5     | plane strip between cylinders, in radii          |
-// | h     | [0.01, 1]  | 1       | height of the cylinder top above the plane, in radii |
-// | angle | [0, pi]    | 0       | direction of the cylinder axis from x (radians)  |
+// Parameters, ranges and defaults: Info() below (`brdfkit models`).
 //
 // Reciprocal: the lit-and-seen set is symmetric in wi, wo and so is the
 // integrand. Not energy-conserving by construction (the normalised Phong
@@ -194,10 +187,26 @@ inline PfSet<T> PfMirrorPlane(const PfSet<T>& s, const T& period) {
 
 }  // namespace detail
 
-// Packed parameters: kd (r, g, b), ks (r, g, b), e, d, h, angle.
 class PoulinFournier {
  public:
   explicit PoulinFournier(const Settings& = {}) {}
+
+  static constexpr Slot kKd{"kd", 0, true}, kKs{"ks", 3, true}, kE{"e", 6}, kD{"d", 7}, kH{"h", 8}, kAngle{"angle", 9};
+  static constexpr std::array kSlots{kKd, kKs, kE, kD, kH, kAngle};
+  static constexpr unsigned kKind = LobeKind::kDiffuse | LobeKind::kGlossy;
+  static constexpr bool kChannelsIndependent = true;
+  // Along the cylinders the lobe is the Phong lobe of exponent e; across
+  // them the normals of the arc (up to theta_m from z) spread it further, up
+  // to the whole hemisphere (width 1). x and y get the rotated marginals.
+  LobeWidth Width(const double* p) const {
+    const double along = PhongExponentWidth(At(p, kE));
+    const double h = At(p, kH);
+    const double theta_m = std::atan2(std::sqrt(h * (2 - h)), 1 - h);
+    const double across = std::min(1.0, std::max(along, theta_m));
+    const double c = std::cos(At(p, kAngle)), sn = std::sin(At(p, kAngle));
+    return {std::sqrt(across * across * sn * sn + along * along * c * c),
+            std::sqrt(across * across * c * c + along * along * sn * sn)};
+  }
 
   static ModelInfo Info() {
     ModelInfo info;
@@ -220,7 +229,7 @@ class PoulinFournier {
   static Vec3<T> ToCylinderFrame(const T* p, const Vec3<T>& w) {
     using std::cos;
     using std::sin;
-    const T c = cos(p[9]), s = sin(p[9]);
+    const T c = cos(At(p, kAngle)), s = sin(At(p, kAngle));
     return Vec3<T>(-s * w.x() + c * w.y(), c * w.x() + s * w.y(), w.z());
   }
 
@@ -229,10 +238,10 @@ class PoulinFournier {
   static void LitSets(const T* p, const Vec3<T>& w, detail::PfSet<T>& arc, detail::PfSet<T>& plane) {
     using std::atan2;
     using std::sqrt;
-    const T& h = p[8];
+    const T& h = At(p, kH);
     const T theta_m = atan2(sqrt(h * (T(2) - h)), T(1) - h);
     const T half_w = sqrt(h * (T(2) - h));  // sin(theta_m)
-    const T period = T(2) * half_w + p[7];
+    const T period = T(2) * half_w + At(p, kD);
     const T alpha = atan2(w.x(), w.z());
     // cos and sin of alpha from the components: cos(alpha) near pi/2 would
     // carry the rounding of alpha (1e-16) into a cosine of order w.z.
@@ -256,9 +265,9 @@ class PoulinFournier {
     Rgb<T> f = Rgb<T>::Constant(T(0));
     if (!SameUpperHemisphere(wi_world, wo_world)) return f;
     const Vec3<T> wi = ToCylinderFrame(p, wi_world), wo = ToCylinderFrame(p, wo_world);
-    const T& e = p[6];
-    const T& h = p[8];
-    const T period = T(2) * sqrt(h * (T(2) - h)) + p[7];
+    const T& e = At(p, kE);
+    const T& h = At(p, kH);
+    const T period = T(2) * sqrt(h * (T(2) - h)) + At(p, kD);
     detail::PfSet<T> arc_i, plane_i, arc_o, plane_o;
     LitSets(p, wi, arc_i, plane_i);
     LitSets(p, wo, arc_o, plane_o);
@@ -330,7 +339,7 @@ class PoulinFournier {
     const T plane_lobe = PowLobe(T(Reflect(wi).dot(wo)), e);
 
     for (int c = 0; c < 3; ++c) {
-      const T kd = p[c] * T(kInvPi), ks = p[3 + c] * norm;
+      const T kd = At(p, kKd, c) * T(kInvPi), ks = At(p, kKs, c) * norm;
       f[c] = (kd * diffuse_arc + ks * spec_arc) / (period * cos_io) + (kd + ks * plane_lobe) * plane_len / period;
     }
     return f;
@@ -370,7 +379,7 @@ class PoulinFournier {
     return s;
   }
 
-  double SampleWeight(const double* p) const { return MeanRgb(p) + MeanRgb(p + 3); }
+  double SampleWeight(const double* p) const { return MeanRgb(p, kKd) + MeanRgb(p, kKs); }
 
  private:
   static constexpr int kLobes = 9;
@@ -384,18 +393,18 @@ class PoulinFournier {
     Mixture m;
     double kd = 0, ks = 0;
     for (int c = 0; c < 3; ++c) {
-      kd += Value(p[c]) / 3;
-      ks += Value(p[3 + c]) / 3;
+      kd += Value(At(p, kKd, c)) / 3;
+      ks += Value(At(p, kKs, c)) / 3;
     }
     const double wd = kd + 0.05;
     m.p_diffuse = wd / (wd + ks);
     m.p_spec = 1 - m.p_diffuse;
-    const double h = Value(p[8]);
+    const double h = Value(At(p, kH));
     m.theta_m = std::atan2(std::sqrt(h * (2 - h)), 1 - h);
     const double spacing = 2 * m.theta_m / (kLobes - 1);
-    m.s = std::min(Value(p[6]), 1.0 / (spacing * spacing));
-    m.cos_a = std::cos(Value(p[9]));
-    m.sin_a = std::sin(Value(p[9]));
+    m.s = std::min(Value(At(p, kE)), 1.0 / (spacing * spacing));
+    m.cos_a = std::cos(Value(At(p, kAngle)));
+    m.sin_a = std::sin(Value(At(p, kAngle)));
     return m;
   }
 

@@ -1,7 +1,9 @@
 // The list of registered models. Adding a model: write its header (see
-// brdf/model.h for the members it provides) and add it to this list; it is
-// then listed by the CLI, checked by validate/, usable by fit/ and
-// data_synth/, and covered by every property test.
+// brdf/model.h for the members it must and may provide) and add it to this
+// list; it is then listed by the CLI, checked by validate/, usable by fit/
+// and data_synth/, and covered by every property test. A program can add
+// models of its own without editing this list: RegisterModel in
+// brdf/model.h, BRDFKIT_REGISTER_MODEL in fit/register_model.h.
 #pragma once
 
 #include <tuple>

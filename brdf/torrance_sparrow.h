@@ -11,22 +11,14 @@
 // alpha = theta_h with a Gaussian distribution P(alpha) = b exp(-c^2 alpha^2),
 // here written D(h) = exp(-(theta_h / m)^2) / N(m) with m = 1/c in radians.
 //
-// | param | range        | default | meaning                                      |
-// |-------|--------------|---------|----------------------------------------------|
-// | ks    | [0, 1]       | 1       | specular weight (colour)                     |
-// | m     | [1e-7, 1]    | 0.2     | facet angle spread in radians (log scale)    |
-// | eta   | [1, 100]     | 1.5     | relative refractive index (colour)           |
+// Parameters, ranges and defaults: Info() below (`brdfkit models`).
 //
 // cook_torrance (Cook & Torrance 1981, "A reflectance model for computer
 // graphics", SIGGRAPH; ACM TOG 1(1) 1982): Beckmann distribution
 // D(h) = exp(-tan^2(theta_h) / m^2) / (pi m^2 cos^4(theta_h)) (Walter et al.
 // 2007 eq. 25), same G and Fresnel.
 //
-// | param | range        | default | meaning                                      |
-// |-------|--------------|---------|----------------------------------------------|
-// | ks    | [0, 1]       | 1       | specular weight (colour)                     |
-// | m     | [1e-7, 1]    | 0.2     | rms facet slope (log scale)                  |
-// | eta   | [1, 100]     | 1.5     | relative refractive index (colour)           |
+// Parameters, ranges and defaults: Info() below (`brdfkit models`).
 //
 // Constants. Cook & Torrance write R_s = F D G / (pi (N.L)(N.V)) with
 // Beckmann's unnormalised D_B = exp(-tan^2 / m^2) / (m^2 cos^4), for which
@@ -69,6 +61,7 @@
 #pragma once
 
 #include "brdf/core.h"
+#include "brdf/quadrature.h"
 #include "brdf/microfacet.h"
 
 #include <algorithm>
@@ -79,35 +72,6 @@
 namespace brdfkit {
 
 namespace detail {
-
-// Gauss-Legendre nodes/weights on [0, 1], Newton iteration on the Legendre
-// recurrence (Golub-Welsch accuracy is not needed for n <= 64).
-template <int N>
-struct GaussLegendre01 {
-  std::array<double, N> x{}, w{};
-  GaussLegendre01() {
-    for (int i = 0; i < (N + 1) / 2; ++i) {
-      double z = std::cos(kPi * (i + 0.75) / (N + 0.5));
-      double dp = 1;
-      for (int it = 0; it < 100; ++it) {
-        double p1 = 1, p2 = 0;
-        for (int j = 1; j <= N; ++j) {
-          const double p3 = p2;
-          p2 = p1;
-          p1 = ((2.0 * j - 1.0) * z * p2 - (j - 1.0) * p3) / j;
-        }
-        dp = N * (z * p1 - p2) / (z * z - 1.0);
-        const double dz = p1 / dp;
-        z -= dz;
-        if (std::abs(dz) < 1e-16) break;
-      }
-      const double wt = 1.0 / ((1.0 - z * z) * dp * dp);  // 2 / (...) halved for [0, 1]
-      x[i] = 0.5 * (1.0 - z);
-      x[N - 1 - i] = 0.5 * (1.0 + z);
-      w[i] = w[N - 1 - i] = wt;
-    }
-  }
-};
 
 inline const GaussLegendre01<24>& TsRule() {
   static const GaussLegendre01<24> rule;
@@ -184,11 +148,16 @@ inline T VGrooveG(const Vec3<T>& wi, const Vec3<T>& wo, const Vec3<T>& h) {
 enum class VGrooveDistribution { kGaussianAngle, kBeckmann };
 
 // Shared code of torrance_sparrow and cook_torrance; Derived gives the name.
-// Packed parameters: ks (r, g, b), m, eta (r, g, b).
 template <typename Derived, VGrooveDistribution Dist>
 class VGrooveModel {
  public:
   explicit VGrooveModel(const Settings& = {}) {}
+
+  static constexpr Slot kKs{"ks", 0, true}, kM{"m", 3}, kEta{"eta", 4, true};
+  static constexpr std::array kSlots{kKs, kM, kEta};
+  static constexpr unsigned kKind = LobeKind::kGlossy;
+  static constexpr bool kChannelsIndependent = true;
+  LobeWidth Width(const double* p) const { return {At(p, kM), At(p, kM)}; }
 
   static ModelInfo Info() {
     ModelInfo info;
@@ -213,7 +182,7 @@ class VGrooveModel {
     using std::exp;
     using std::log;
     if (wm.z() <= T(0)) return T(0);  // back-facing facets do not exist
-    const T& m = p[3];
+    const T& m = At(p, kM);
     if constexpr (Dist == VGrooveDistribution::kGaussianAngle) {
       // atan2 instead of acos(z): finite derivative at the normal.
       const T theta = atan2(SafeSqrt(Sin2Theta(wm)), wm.z());
@@ -235,7 +204,7 @@ class VGrooveModel {
     const T scalar = D(p, h) * detail::VGrooveG(wi, wo, h) / (T(4) * wi.z() * wo.z());
     const T cos_d = HalfCos(wi, wo);  // = wi.h, never negative by rounding
     Rgb<T> f;
-    for (int c = 0; c < 3; ++c) f[c] = p[c] * FresnelDielectric(p[4 + c], cos_d) * scalar;
+    for (int c = 0; c < 3; ++c) f[c] = At(p, kKs, c) * FresnelDielectric(At(p, kEta, c), cos_d) * scalar;
     return f;
   }
 
@@ -250,7 +219,7 @@ class VGrooveModel {
   BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const {
     BsdfSample<T> s;
     if (wo.z() <= T(0)) return s;
-    const double m = Value(p[3]);
+    const double m = Value(At(p, kM));
     double sin_t, cos_t;
     if constexpr (Dist == VGrooveDistribution::kGaussianAngle) {
       const double theta = m * SampleScaledAngle(m, u1);
@@ -271,7 +240,7 @@ class VGrooveModel {
 
   double SampleWeight(const double* p) const {
     double s = 0;
-    for (int c = 0; c < 3; ++c) s += p[c] * FresnelDielectric(p[4 + c], 0.5);
+    for (int c = 0; c < 3; ++c) s += At(p, kKs, c) * FresnelDielectric(At(p, kEta, c), 0.5);
     return s / 3.0;
   }
 

@@ -51,7 +51,7 @@ nlohmann::json ResultJson(const fit::Result& r, const fit::Options& o) {
   j["uncertainty"] = r.covariance_message.empty() ? "ok" : r.covariance_message;
   j["metric"] = fit::MetricName(o.metric);
   j["solver"] = fit::LinearSolverName(o.solver);
-  j["loss"] = o.loss == fit::Loss::kNone ? "none" : (o.loss == fit::Loss::kHuber ? "huber" : "cauchy");
+  j["loss"] = fit::LossName(o.loss);
   if (o.loss != fit::Loss::kNone) j["loss_scale"] = r.loss_scale;
   j["cost"] = r.cost;
   j["rmse"] = r.rmse;
@@ -103,10 +103,11 @@ std::string TraceCsv(const fit::Result& r) {
 // "huber", "cauchy:0.5".
 void ParseLoss(const std::string& text, fit::Options& o) {
   const std::string name = text.substr(0, text.find(':'));
-  if (name == "none") o.loss = fit::Loss::kNone;
-  else if (name == "huber") o.loss = fit::Loss::kHuber;
-  else if (name == "cauchy") o.loss = fit::Loss::kCauchy;
-  else throw UsageError("--loss: unknown loss '" + name + "' (expected none, huber or cauchy, optionally :scale)");
+  try {
+    o.loss = fit::ParseLoss(name);
+  } catch (const std::invalid_argument& e) {
+    throw UsageError(std::string("--loss: ") + e.what() + ", optionally with :scale");
+  }
   if (text.find(':') != std::string::npos) {
     const std::string v = text.substr(text.find(':') + 1);
     if (!ParseDouble(v, o.loss_scale) || !(o.loss_scale > 0) || !std::isfinite(o.loss_scale))

@@ -5,12 +5,54 @@
 
 namespace brdfkit::cli {
 
+namespace {
+std::string Num(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%g", v);
+  return buf;
+}
+
+std::string KindText(unsigned kind) {
+  std::string s;
+  const std::pair<unsigned, const char*> names[] = {{LobeKind::kDiffuse, "diffuse"},
+                                                    {LobeKind::kGlossy, "glossy"},
+                                                    {LobeKind::kSpecular, "specular"},
+                                                    {LobeKind::kTransmission, "transmission"}};
+  for (const auto& [flag, name] : names)
+    if (kind & flag) s += (s.empty() ? "" : ", ") + std::string(name);
+  return s;
+}
+}  // namespace
+
+std::string ModelTableMarkdown() {
+  std::string out =
+      "| model | parameters (range, default) | kind | reciprocal | energy conserving | summary |\n"
+      "|---|---|---|---|---|---|\n";
+  for (const ModelInfo& i : RegisteredModelInfos()) {
+    std::string params;
+    for (const ParamInfo& p : i.params)
+      params += (params.empty() ? "" : "; ") + ("`" + p.name + "`") + (p.colour ? " (rgb)" : "") + " [" +
+                Num(p.lower) + ", " + Num(p.upper) + "] " + Num(p.default_value);
+    for (const std::string& s : i.settings) params += (params.empty() ? "" : "; ") + ("`" + s + "`") + " (setting)";
+    out += "| `" + i.name + "` | " + params + " | " + KindText(TraitsOf(i.name).kind) + " | " +
+           (i.reciprocal ? "yes" : "**no**") + " | " + (i.energy_conserving ? "yes" : "no") + " | " + i.summary +
+           " |\n";
+  }
+  return out;
+}
+
 void RegisterModels(CLI::App& app) {
   auto* cmd = app.add_subcommand("models", "list every model with its parameter table");
   static bool json = false;
   cmd->add_flag("--json", json, "print JSON: a list of {name, params, reciprocal, energy_conserving}");
+  static bool markdown = false;
+  cmd->add_flag("--markdown", markdown, "print the Markdown table of the README's 'Registered models'");
   cmd->callback([] {
     const auto infos = RegisteredModelInfos();
+    if (markdown) {
+      std::cout << ModelTableMarkdown();
+      return;
+    }
     if (json) {
       nlohmann::json out = nlohmann::json::array();
       for (const ModelInfo& i : infos) out.push_back(ModelInfoJson(i));

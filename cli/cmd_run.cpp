@@ -62,7 +62,14 @@ void RegisterRun(CLI::App& app) {
   cmd->add_flag("--json", json_out, "with --dry-run: the plan as JSON; otherwise print results.json");
   cmd->add_flag("--force", force, "recompute every needed task, even when its cached result is up to date");
   cmd->add_flag("--quiet,-q", quiet, "no progress bars or per-task lines");
+  static bool names = false;
+  cmd->add_flag("--names", names, "print, as JSON, every name a scene may use for a type, format, metric, loss, "
+                                  "solver or integration method, and stop");
   cmd->callback([] {
+    if (names) {
+      std::cout << SceneNames().dump(2) << "\n";
+      return;
+    }
     InstallInterruptHandler();
     Scene scene;
     try {

@@ -47,6 +47,8 @@ LoadedModel LoadModel(const ModelArgs& args);
 Eigen::Vector3d ParseDirection(const std::string& text, bool degrees, const std::string& option);
 
 nlohmann::json ModelInfoJson(const ModelInfo& info);
+// The README's table of registered models (`brdfkit models --markdown`).
+std::string ModelTableMarkdown();
 
 // Subcommands; each file cli/cmd_<name>.cpp defines one.
 void RegisterModels(CLI::App& app);

@@ -339,7 +339,7 @@ TaskOutcome RunFit(const TaskSpec& t, const RunContext& ctx) {
   fit::Options opt;
   opt.metric = fit::ParseMetric(t.metric);
   opt.solver = fit::ParseLinearSolver(t.solver);
-  opt.loss = t.loss == "huber" ? fit::Loss::kHuber : t.loss == "cauchy" ? fit::Loss::kCauchy : fit::Loss::kNone;
+  opt.loss = fit::ParseLoss(t.loss);
   opt.max_iterations = t.max_iterations;
   opt.starts_per_param = t.starts;
   if (!t.init.empty()) opt.initial = ParseParams(model.Info(), t.init);

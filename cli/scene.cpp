@@ -12,7 +12,9 @@
 
 #include "brdf/merl.h"
 #include "brdf/params.h"
+#include "fit/fit.h"
 #include "validate/albedo.h"
+#include "validate/integrators.h"
 
 namespace brdfkit::cli {
 
@@ -234,6 +236,246 @@ std::vector<std::string> Scene::Dependencies(const TaskSpec& task) const {
   return out;
 }
 
+namespace {
+
+// One entry of "materials".
+MaterialSpec ParseMaterial(Reader& r, const Scene& s, const std::string& name, const std::string& path) {
+  MaterialSpec m;
+  m.name = name;
+  const int kinds = int(r.Has("model")) + int(r.Has("merl")) + int(r.Has("table")) + int(r.Has("fit"));
+  if (kinds != 1) Fail(s.origin, path, "give exactly one of \"model\", \"merl\", \"table\" or \"fit\"");
+  if (r.Has("model")) {
+    m.kind = MaterialSpec::Kind::kAnalytic;
+    const Model model = ParseModelAt(r, "model");
+    if (!model.Info().settings.empty())
+      r.FailKey("model", "'" + model.Spec() + "' reads a file: use \"merl\": FILE for measured materials");
+    m.model = model.Spec();
+    m.params = ReadParams(r, "params", model.Info());
+  } else if (r.Has("merl")) {
+    m.kind = MaterialSpec::Kind::kMerl;
+    m.path = ExistingFile(s.base_dir, r.String("merl"), s.origin, r.Path("merl"));
+    // The header and the size are checked now, not after other work.
+    try {
+      (void)MerlTable::Read(m.path);
+    } catch (const std::exception& e) {
+      r.FailKey("merl", e.what());
+    }
+  } else if (r.Has("table")) {
+    m.kind = MaterialSpec::Kind::kTable;
+    m.path = ExistingFile(s.base_dir, r.String("table"), s.origin, r.Path("table"));
+  } else {
+    m.kind = MaterialSpec::Kind::kFit;
+    m.fit_task = r.String("fit");
+  }
+  return m;
+}
+
+// One entry of "instruments".
+InstrumentSpec ParseInstrumentEntry(Reader& r, const Scene& s, const std::string& name, const std::string& path) {
+  InstrumentSpec in;
+  in.name = name;
+  const std::string type = r.String("type");
+  if (type != "gonioreflectometer" && type != "camera")
+    r.FailKey("type", "unknown instrument type '" + type + "' (expected gonioreflectometer or camera)");
+  in.camera = type == "camera";
+  if (r.Has("file") && r.Has("spec")) Fail(s.origin, path, "give \"file\" or \"spec\", not both");
+  try {
+    if (r.Has("file")) {
+      in.file = ExistingFile(s.base_dir, r.String("file"), s.origin, r.Path("file"));
+      if (in.camera) in.rig = synth::LoadCameraRig(in.file);
+      else in.instrument = synth::LoadInstrument(in.file);
+    } else if (r.Has("spec")) {
+      const json& spec = r.Get("spec");
+      const std::string where = s.origin + ": " + r.Path("spec");
+      if (in.camera) in.rig = synth::ParseCameraRig(spec, where);
+      else in.instrument = synth::ParseInstrument(spec, where, s.base_dir);
+    } else {
+      if (in.camera) in.rig = synth::DefaultCameraRig();
+      else in.instrument = synth::DefaultInstrument();
+    }
+  } catch (const std::runtime_error& e) {
+    const std::string what = e.what();
+    // Messages from the instrument parser already name the file and key.
+    if (what.rfind(s.origin, 0) == 0 || (!in.file.empty() && what.find(in.file) != std::string::npos)) throw;
+    Fail(s.origin, path, what);
+  }
+  return in;
+}
+
+// A material of the scene named at `key`.
+const MaterialSpec& NeedMaterial(Reader& r, const Scene& s, const std::string& key, const std::string& name) {
+  auto it = s.materials.find(name);
+  if (it == s.materials.end()) r.FailKey(key, "no material named '" + name + "' in \"materials\"");
+  return it->second;
+}
+
+// Each task type owns its keys: one parser per type, each reading its
+// fields of the task object (the common name and type are read before).
+void ParseCheckTask(Reader& r, const Scene& s, TaskSpec& t) {
+  t.materials = r.Strings("materials", true);
+  if (t.materials.empty()) r.FailKey("materials", "name at least one material");
+  for (std::size_t i = 0; i < t.materials.size(); ++i) {
+    const MaterialSpec& m = NeedMaterial(r, s, "materials[" + std::to_string(i) + "]", t.materials[i]);
+    if (m.kind == MaterialSpec::Kind::kTable)
+      r.FailKey("materials[" + std::to_string(i) + "]",
+                "'" + m.name + "' is a data table, which has no BRDF to check (fit a model to it first)");
+  }
+  t.sampling = r.Bool("sampling", true);
+  t.sampling_samples = r.Integer("samples", 100000, 1000, 100000000);
+}
+
+void ParseAlbedoTask(Reader& r, const Scene& /*scene*/, TaskSpec& t) {
+  const Model model = ParseModelAt(r, "model");
+  if (!model.Info().settings.empty()) r.FailKey("model", "albedo tables are made of analytic models");
+  t.model = model.Spec();
+  t.params = ReadParams(r, "params", model.Info());
+  t.axes = r.String("axes", t.axes);
+  try {
+    const auto axes = validate::ParseAxes(t.axes);
+    if (axes.empty() || axes[0].name != "mu") throw std::runtime_error("the first axis must be mu:N");
+    if (axes.size() < 2 || axes.size() > 3)
+      throw std::runtime_error("give mu and one or two parameters, e.g. mu:32,alpha:32");
+    for (std::size_t i = 1; i < axes.size(); ++i) {
+      bool found = false;
+      for (const ParamInfo& p : model.Info().params) found = found || p.name == axes[i].name;
+      if (!found) throw std::runtime_error("'" + axes[i].name + "' is not a parameter of " + model.Spec());
+    }
+  } catch (const std::exception& e) {
+    r.FailKey("axes", e.what());
+  }
+  const std::string nodes = r.String("nodes", "uniform");
+  if (nodes != "uniform" && nodes != "gauss") r.FailKey("nodes", "expected \"uniform\" or \"gauss\"");
+  t.gauss_nodes = nodes == "gauss";
+  t.tolerance = r.Number("tolerance", t.tolerance, 1e-12, 1e-2);
+  t.accept_error = r.Number("accept_error", t.accept_error, 1e-12, 1e3);
+  t.formats = r.Strings("formats", false);
+  if (!r.Has("formats")) t.formats = {"csv", "exr", "header"};
+  for (const std::string& f : t.formats)
+    if (!kAlbedoFormats.count(f)) r.FailKey("formats", "unknown format '" + f + "' (expected csv, exr, header)");
+}
+
+void ParseSynthTask(Reader& r, const Scene& s, TaskSpec& t) {
+  t.material = r.String("material");
+  const MaterialSpec& m = NeedMaterial(r, s, "material", t.material);
+  if (m.kind == MaterialSpec::Kind::kTable)
+    r.FailKey("material", "'" + m.name + "' is a data table: an instrument measures a BRDF, not a table");
+  t.instrument = r.String("instrument");
+  auto in = s.instruments.find(t.instrument);
+  if (in == s.instruments.end())
+    r.FailKey("instrument", "no instrument named '" + t.instrument + "' in \"instruments\"");
+  t.seed = static_cast<std::uint64_t>(r.Integer("seed", 0, 0, INT64_MAX));
+  t.formats = r.Strings("formats", false);
+  if (!r.Has("formats")) t.formats = {"csv"};
+  for (const std::string& f : t.formats) {
+    if (!kSynthFormats.count(f)) r.FailKey("formats", "unknown format '" + f + "' (expected csv, binary, exr)");
+    if (in->second.camera && f != "csv")
+      r.FailKey("formats", "a camera writes raw EXR images and a reduced csv table; '" + f + "' does not apply");
+    if (!in->second.camera && f == "binary" && in->second.instrument.plan.kind != synth::SamplingPlan::Kind::kMerl)
+      r.FailKey("formats", "'binary' (MERL) needs an instrument whose plan is the MERL grid");
+    if (!in->second.camera && f == "exr" && in->second.instrument.plan.kind != synth::SamplingPlan::Kind::kFull &&
+        in->second.instrument.plan.kind != synth::SamplingPlan::Kind::kInPlane &&
+        in->second.instrument.plan.kind != synth::SamplingPlan::Kind::kMerl)
+      r.FailKey("formats", "'exr' needs a grid plan (full, in_plane or merl)");
+  }
+}
+
+void ParseFitTask(Reader& r, const Scene& s, TaskSpec& t) {
+  const std::string data = r.String("data");
+  if (const TaskSpec* d = s.FindTask(data)) {
+    if (d->type != TaskSpec::Type::kSynth)
+      r.FailKey("data", "task '" + data + "' is a " + TaskTypeName(d->type) + " task; data comes from a synth task");
+    t.data_task = data;
+  } else if (s.materials.count(data)) {
+    const MaterialSpec& m = s.materials.at(data);
+    if (m.kind != MaterialSpec::Kind::kMerl && m.kind != MaterialSpec::Kind::kTable)
+      r.FailKey("data", "material '" + data + "' is not measured data (use a merl or table material, or a synth task)");
+    t.data_material = data;
+  } else {
+    r.FailKey("data", "'" + data + "' is neither a synth task defined before this one nor a measured material");
+  }
+  const Model model = ParseModelAt(r, "model");
+  if (!model.Info().settings.empty()) r.FailKey("model", "fit an analytic model or a sum of lobes");
+  t.model = model.Spec();
+  if (r.Has("init")) {
+    t.init = r.String("init");
+    try {
+      ParseParams(model.Info(), t.init);
+    } catch (const std::exception& e) {
+      r.FailKey("init", e.what());
+    }
+  }
+  // The fitter's own name parsers: a name it accepts is a name here.
+  const auto parsed = [&r](const char* key, const std::string& text, auto parse) {
+    try {
+      parse(text);
+    } catch (const std::invalid_argument& e) {
+      r.FailKey(key, e.what());
+    }
+  };
+  t.metric = r.String("metric", t.metric);
+  parsed("metric", t.metric, fit::ParseMetric);
+  t.loss = r.String("loss", t.loss);
+  parsed("loss", t.loss, fit::ParseLoss);
+  t.solver = r.String("solver", t.solver);
+  parsed("solver", t.solver, fit::ParseLinearSolver);
+  if (r.Has("instrument")) {
+    t.instrument = r.String("instrument");
+    auto in = s.instruments.find(t.instrument);
+    if (in == s.instruments.end())
+      r.FailKey("instrument", "no instrument named '" + t.instrument + "' in \"instruments\"");
+    if (in->second.camera) r.FailKey("instrument", "fits go through a gonioreflectometer's apertures, not a camera");
+  }
+  t.max_iterations = static_cast<int>(r.Integer("max_iterations", t.max_iterations, 1, 100000));
+  t.starts = static_cast<int>(r.Integer("starts", t.starts, 1, 100));
+}
+
+void ParseConvergenceTask(Reader& r, const Scene& /*scene*/, TaskSpec& t) {
+  t.quick = r.Bool("quick", true);
+  t.methods = r.Strings("methods", false);
+  for (const std::string& m : t.methods) {
+    try {
+      validate::ParseMethod(m);
+    } catch (const std::invalid_argument& e) {
+      r.FailKey("methods", e.what());
+    }
+  }
+}
+
+struct TaskParser {
+  const char* name;
+  TaskSpec::Type type;
+  void (*parse)(Reader&, const Scene&, TaskSpec&);
+};
+const TaskParser kTaskParsers[] = {
+    {"check", TaskSpec::Type::kCheck, ParseCheckTask},
+    {"albedo", TaskSpec::Type::kAlbedo, ParseAlbedoTask},
+    {"synth", TaskSpec::Type::kSynth, ParseSynthTask},
+    {"fit", TaskSpec::Type::kFit, ParseFitTask},
+    {"convergence", TaskSpec::Type::kConvergence, ParseConvergenceTask},
+};
+
+}  // namespace
+
+nlohmann::json SceneNames() {
+  using nlohmann::json;
+  json methods = json::array(), metrics = json::array(), losses = json::array(), solvers = json::array();
+  for (validate::Method m : validate::AllMethods()) methods.push_back(validate::MethodName(m));
+  for (fit::Metric m : fit::AllMetrics()) metrics.push_back(fit::MetricName(m));
+  for (fit::Loss l : fit::AllLosses()) losses.push_back(fit::LossName(l));
+  for (fit::LinearSolver l : fit::AllLinearSolvers()) solvers.push_back(fit::LinearSolverName(l));
+  json types = json::array();
+  for (const TaskParser& p : kTaskParsers) types.push_back(p.name);
+  return json{{"task_types", types},
+              {"instrument_types", {"gonioreflectometer", "camera"}},
+              {"albedo_nodes", {"uniform", "gauss"}},
+              {"albedo_formats", kAlbedoFormats},
+              {"synth_formats", kSynthFormats},
+              {"metrics", metrics},
+              {"losses", losses},
+              {"solvers", solvers},
+              {"methods", methods}};
+}
+
 Scene ParseScene(const std::string& text, const std::string& origin, const std::string& base_dir) {
   json root;
   try {
@@ -263,33 +505,7 @@ Scene ParseScene(const std::string& text, const std::string& origin, const std::
       const std::string path = "materials." + it.key();
       CheckName(it.key(), s.origin, path);
       Reader r(it.value(), path, s.origin);
-      MaterialSpec m;
-      m.name = it.key();
-      const int kinds = int(r.Has("model")) + int(r.Has("merl")) + int(r.Has("table")) + int(r.Has("fit"));
-      if (kinds != 1) Fail(s.origin, path, "give exactly one of \"model\", \"merl\", \"table\" or \"fit\"");
-      if (r.Has("model")) {
-        m.kind = MaterialSpec::Kind::kAnalytic;
-        const Model model = ParseModelAt(r, "model");
-        if (!model.Info().settings.empty())
-          r.FailKey("model", "'" + model.Spec() + "' reads a file: use \"merl\": FILE for measured materials");
-        m.model = model.Spec();
-        m.params = ReadParams(r, "params", model.Info());
-      } else if (r.Has("merl")) {
-        m.kind = MaterialSpec::Kind::kMerl;
-        m.path = ExistingFile(s.base_dir, r.String("merl"), s.origin, r.Path("merl"));
-        // The header and the size are checked now, not after other work.
-        try {
-          (void)MerlTable::Read(m.path);
-        } catch (const std::exception& e) {
-          r.FailKey("merl", e.what());
-        }
-      } else if (r.Has("table")) {
-        m.kind = MaterialSpec::Kind::kTable;
-        m.path = ExistingFile(s.base_dir, r.String("table"), s.origin, r.Path("table"));
-      } else {
-        m.kind = MaterialSpec::Kind::kFit;
-        m.fit_task = r.String("fit");
-      }
+      MaterialSpec m = ParseMaterial(r, s, it.key(), path);
       r.Finish();
       s.materials[m.name] = m;
     }
@@ -303,33 +519,7 @@ Scene ParseScene(const std::string& text, const std::string& origin, const std::
       const std::string path = "instruments." + it.key();
       CheckName(it.key(), s.origin, path);
       Reader r(it.value(), path, s.origin);
-      InstrumentSpec in;
-      in.name = it.key();
-      const std::string type = r.String("type");
-      if (type != "gonioreflectometer" && type != "camera")
-        r.FailKey("type", "unknown instrument type '" + type + "' (expected gonioreflectometer or camera)");
-      in.camera = type == "camera";
-      if (r.Has("file") && r.Has("spec")) Fail(s.origin, path, "give \"file\" or \"spec\", not both");
-      try {
-        if (r.Has("file")) {
-          in.file = ExistingFile(s.base_dir, r.String("file"), s.origin, r.Path("file"));
-          if (in.camera) in.rig = synth::LoadCameraRig(in.file);
-          else in.instrument = synth::LoadInstrument(in.file);
-        } else if (r.Has("spec")) {
-          const json& spec = r.Get("spec");
-          const std::string where = s.origin + ": " + r.Path("spec");
-          if (in.camera) in.rig = synth::ParseCameraRig(spec, where);
-          else in.instrument = synth::ParseInstrument(spec, where, s.base_dir);
-        } else {
-          if (in.camera) in.rig = synth::DefaultCameraRig();
-          else in.instrument = synth::DefaultInstrument();
-        }
-      } catch (const std::runtime_error& e) {
-        const std::string what = e.what();
-        // Messages from the instrument parser already name the file and key.
-        if (what.rfind(s.origin, 0) == 0 || (!in.file.empty() && what.find(in.file) != std::string::npos)) throw;
-        Fail(s.origin, path, what);
-      }
+      InstrumentSpec in = ParseInstrumentEntry(r, s, it.key(), path);
       r.Finish();
       s.instruments[in.name] = in;
     }
@@ -347,131 +537,16 @@ Scene ParseScene(const std::string& text, const std::string& origin, const std::
     CheckName(t.name, s.origin, r.Path("name"));
     if (s.FindTask(t.name)) r.FailKey("name", "a task named '" + t.name + "' is already defined");
     const std::string type = r.String("type");
-    const auto need_material = [&](const std::string& key, const std::string& name) -> const MaterialSpec& {
-      auto it = s.materials.find(name);
-      if (it == s.materials.end()) r.FailKey(key, "no material named '" + name + "' in \"materials\"");
-      return it->second;
-    };
-    if (type == "check") {
-      t.type = TaskSpec::Type::kCheck;
-      t.materials = r.Strings("materials", true);
-      if (t.materials.empty()) r.FailKey("materials", "name at least one material");
-      for (std::size_t i = 0; i < t.materials.size(); ++i) {
-        const MaterialSpec& m = need_material("materials[" + std::to_string(i) + "]", t.materials[i]);
-        if (m.kind == MaterialSpec::Kind::kTable)
-          r.FailKey("materials[" + std::to_string(i) + "]",
-                    "'" + m.name + "' is a data table, which has no BRDF to check (fit a model to it first)");
-      }
-      t.sampling = r.Bool("sampling", true);
-      t.sampling_samples = r.Integer("samples", 100000, 1000, 100000000);
-    } else if (type == "albedo") {
-      t.type = TaskSpec::Type::kAlbedo;
-      const Model model = ParseModelAt(r, "model");
-      if (!model.Info().settings.empty()) r.FailKey("model", "albedo tables are made of analytic models");
-      t.model = model.Spec();
-      t.params = ReadParams(r, "params", model.Info());
-      t.axes = r.String("axes", t.axes);
-      try {
-        const auto axes = validate::ParseAxes(t.axes);
-        if (axes.empty() || axes[0].name != "mu") throw std::runtime_error("the first axis must be mu:N");
-        if (axes.size() < 2 || axes.size() > 3)
-          throw std::runtime_error("give mu and one or two parameters, e.g. mu:32,alpha:32");
-        for (std::size_t i = 1; i < axes.size(); ++i) {
-          bool found = false;
-          for (const ParamInfo& p : model.Info().params) found = found || p.name == axes[i].name;
-          if (!found) throw std::runtime_error("'" + axes[i].name + "' is not a parameter of " + model.Spec());
-        }
-      } catch (const std::exception& e) {
-        r.FailKey("axes", e.what());
-      }
-      const std::string nodes = r.String("nodes", "uniform");
-      if (nodes != "uniform" && nodes != "gauss") r.FailKey("nodes", "expected \"uniform\" or \"gauss\"");
-      t.gauss_nodes = nodes == "gauss";
-      t.tolerance = r.Number("tolerance", t.tolerance, 1e-12, 1e-2);
-      t.accept_error = r.Number("accept_error", t.accept_error, 1e-12, 1e3);
-      t.formats = r.Strings("formats", false);
-      if (!r.Has("formats")) t.formats = {"csv", "exr", "header"};
-      for (const std::string& f : t.formats)
-        if (!kAlbedoFormats.count(f)) r.FailKey("formats", "unknown format '" + f + "' (expected csv, exr, header)");
-    } else if (type == "synth") {
-      t.type = TaskSpec::Type::kSynth;
-      t.material = r.String("material");
-      const MaterialSpec& m = need_material("material", t.material);
-      if (m.kind == MaterialSpec::Kind::kTable)
-        r.FailKey("material", "'" + m.name + "' is a data table: an instrument measures a BRDF, not a table");
-      t.instrument = r.String("instrument");
-      auto in = s.instruments.find(t.instrument);
-      if (in == s.instruments.end())
-        r.FailKey("instrument", "no instrument named '" + t.instrument + "' in \"instruments\"");
-      t.seed = static_cast<std::uint64_t>(r.Integer("seed", 0, 0, INT64_MAX));
-      t.formats = r.Strings("formats", false);
-      if (!r.Has("formats")) t.formats = {"csv"};
-      for (const std::string& f : t.formats) {
-        if (!kSynthFormats.count(f)) r.FailKey("formats", "unknown format '" + f + "' (expected csv, binary, exr)");
-        if (in->second.camera && f != "csv")
-          r.FailKey("formats", "a camera writes raw EXR images and a reduced csv table; '" + f + "' does not apply");
-        if (!in->second.camera && f == "binary" && in->second.instrument.plan.kind != synth::SamplingPlan::Kind::kMerl)
-          r.FailKey("formats", "'binary' (MERL) needs an instrument whose plan is the MERL grid");
-        if (!in->second.camera && f == "exr" && in->second.instrument.plan.kind != synth::SamplingPlan::Kind::kFull &&
-            in->second.instrument.plan.kind != synth::SamplingPlan::Kind::kInPlane &&
-            in->second.instrument.plan.kind != synth::SamplingPlan::Kind::kMerl)
-          r.FailKey("formats", "'exr' needs a grid plan (full, in_plane or merl)");
-      }
-    } else if (type == "fit") {
-      t.type = TaskSpec::Type::kFit;
-      const std::string data = r.String("data");
-      if (const TaskSpec* d = s.FindTask(data)) {
-        if (d->type != TaskSpec::Type::kSynth)
-          r.FailKey("data", "task '" + data + "' is a " + TaskTypeName(d->type) + " task; data comes from a synth task");
-        t.data_task = data;
-      } else if (s.materials.count(data)) {
-        const MaterialSpec& m = s.materials.at(data);
-        if (m.kind != MaterialSpec::Kind::kMerl && m.kind != MaterialSpec::Kind::kTable)
-          r.FailKey("data", "material '" + data + "' is not measured data (use a merl or table material, or a synth task)");
-        t.data_material = data;
-      } else {
-        r.FailKey("data", "'" + data + "' is neither a synth task defined before this one nor a measured material");
-      }
-      const Model model = ParseModelAt(r, "model");
-      if (!model.Info().settings.empty()) r.FailKey("model", "fit an analytic model or a sum of lobes");
-      t.model = model.Spec();
-      if (r.Has("init")) {
-        t.init = r.String("init");
-        try {
-          ParseParams(model.Info(), t.init);
-        } catch (const std::exception& e) {
-          r.FailKey("init", e.what());
-        }
-      }
-      t.metric = r.String("metric", t.metric);
-      if (!std::set<std::string>{"l2", "relative", "cosine", "log", "cbrt"}.count(t.metric))
-        r.FailKey("metric", "unknown metric '" + t.metric + "' (expected l2, relative, cosine, log or cbrt)");
-      t.loss = r.String("loss", t.loss);
-      if (!std::set<std::string>{"none", "huber", "cauchy"}.count(t.loss))
-        r.FailKey("loss", "unknown loss '" + t.loss + "' (expected none, huber or cauchy)");
-      t.solver = r.String("solver", t.solver);
-      if (!std::set<std::string>{"dense_qr", "dense_normal_cholesky", "iterative_schur", "cgnr"}.count(t.solver))
-        r.FailKey("solver", "unknown solver '" + t.solver +
-                                "' (expected dense_qr, dense_normal_cholesky, iterative_schur or cgnr)");
-      if (r.Has("instrument")) {
-        t.instrument = r.String("instrument");
-        auto in = s.instruments.find(t.instrument);
-        if (in == s.instruments.end())
-          r.FailKey("instrument", "no instrument named '" + t.instrument + "' in \"instruments\"");
-        if (in->second.camera) r.FailKey("instrument", "fits go through a gonioreflectometer's apertures, not a camera");
-      }
-      t.max_iterations = static_cast<int>(r.Integer("max_iterations", t.max_iterations, 1, 100000));
-      t.starts = static_cast<int>(r.Integer("starts", t.starts, 1, 100));
-    } else if (type == "convergence") {
-      t.type = TaskSpec::Type::kConvergence;
-      t.quick = r.Bool("quick", true);
-      t.methods = r.Strings("methods", false);
-      for (const std::string& m : t.methods)
-        if (!std::set<std::string>{"uniform", "cosine", "importance", "sobol", "gauss_legendre", "adaptive"}.count(m))
-          r.FailKey("methods", "unknown integrator '" + m + "'");
-    } else {
-      r.FailKey("type", "unknown task type '" + type + "' (expected check, albedo, synth, fit or convergence)");
+    const TaskParser* parser = nullptr;
+    for (const TaskParser& p : kTaskParsers)
+      if (type == p.name) parser = &p;
+    if (!parser) {
+      std::string known;
+      for (const TaskParser& p : kTaskParsers) known += std::string(known.empty() ? "" : ", ") + p.name;
+      r.FailKey("type", "unknown task type '" + type + "' (expected one of: " + known + ")");
     }
+    t.type = parser->type;
+    parser->parse(r, s, t);
     r.Finish();
     s.tasks.push_back(std::move(t));
   }

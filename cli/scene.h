@@ -49,7 +49,7 @@ struct TaskSpec {
   // albedo
   std::string model;             // also fit
   std::vector<double> params;    // albedo: fixed parameter values (packed)
-  std::string axes = "mu:32,alpha:32";
+  std::string axes = "mu:32,alpha:32:0.001:1";  // within the tables' 1e-6 contract
   bool gauss_nodes = false;
   double tolerance = 1e-6;  // as validate::AlbedoQuadratureOptions
   double accept_error = 0;  // largest accepted error estimate (0: the tolerance)
@@ -73,6 +73,12 @@ struct TaskSpec {
 };
 
 const char* TaskTypeName(TaskSpec::Type t);
+
+// Every name a scene may use where the schema (examples/scene.schema.json)
+// lists an enumeration, from the libraries' own lists: task and instrument
+// types, albedo nodes and formats, synth formats, fit metrics, losses and
+// solvers, integration methods (`brdfkit run --names`).
+nlohmann::json SceneNames();
 
 struct Scene {
   std::string origin;    // file name for messages ("<embedded default scene>")

@@ -5,7 +5,7 @@
 #include <stdexcept>
 #include <string>
 
-#include "validate/quadrature.h"
+#include "brdf/quadrature.h"
 
 namespace brdfkit::synth {
 
@@ -33,7 +33,7 @@ ConeRule MakeConeRuleOfDegree(double radius, int degree) {
   // 1 - cos r written as 2 sin^2(r/2): no cancellation for small apertures.
   const double s = std::sin(radius / 2);
   const double u_max = 2 * s * s;
-  const validate::GaussLegendre gl(n), clip(m / 2);
+  const GaussLegendre gl(n), clip(m / 2);
   for (int k = 0; k < clip.size(); ++k) {
     rule.clip_nodes.push_back(clip.node01(k));
     rule.clip_weights.push_back(clip.weight01(k));

@@ -12,7 +12,7 @@
 #include "brdf/params.h"
 #include "data_synth/forward_model.h"
 #include "data_synth/synth.h"
-#include "validate/quadrature.h"
+#include "brdf/quadrature.h"
 
 namespace brdfkit::synth {
 namespace {
@@ -102,7 +102,7 @@ TEST(ForwardModel, LambertianReadsRhoOverPiThroughAnyAperture) {
 // pi sin^2(r) cos(theta_axis) of a cone wholly above the horizon.
 Rgb<double> ReferenceConeAverage(const Bxdf<double>& bxdf, const double* p, const Eigen::Vector3d& wi,
                                  const Eigen::Vector3d& wo, double ri, double ro, int n_alpha, int n_beta) {
-  const validate::GaussLegendre ga(n_alpha), gb(n_beta);
+  const GaussLegendre ga(n_alpha), gb(n_beta);
   auto nodes = [&](const Eigen::Vector3d& axis, double r) {
     Eigen::Vector3d b1, b2;
     BasisFromZ(axis, b1, b2);
@@ -347,7 +347,7 @@ TEST(ForwardModel, AdaptiveOrderHandlesWideConesTiltAndJitter) {
 // substitution theta = theta_low + t^2 removes the square-root end point.
 double ClippedProjectedSolidAngle(double theta_a, double r) {
   const double lo = theta_a - r, hi = std::min(kPi / 2, theta_a + r);
-  const validate::GaussLegendre gl(400);
+  const GaussLegendre gl(400);
   const double t_max = std::sqrt(hi - lo);
   double sum = 0;
   for (int k = 0; k < gl.size(); ++k) {

@@ -31,13 +31,27 @@ namespace brdfkit::fit {
 // ---------------------------------------------------------------------------
 // Names.
 
+namespace {
+// "a, b, c or d" of every name of an enumeration.
+template <typename E, typename NameOf>
+std::string Expected(const std::vector<E>& all, NameOf name_of) {
+  std::string s;
+  for (std::size_t i = 0; i < all.size(); ++i)
+    s += (i == 0 ? "" : i + 1 == all.size() ? " or " : ", ") + name_of(all[i]);
+  return s;
+}
+}  // namespace
+
+const std::vector<Metric>& AllMetrics() {
+  static const std::vector<Metric> kAll = {Metric::kL2, Metric::kRelative, Metric::kCosine, Metric::kLog,
+                                           Metric::kCbrt};
+  return kAll;
+}
+
 Metric ParseMetric(const std::string& name) {
-  if (name == "l2") return Metric::kL2;
-  if (name == "relative") return Metric::kRelative;
-  if (name == "cosine") return Metric::kCosine;
-  if (name == "log") return Metric::kLog;
-  if (name == "cbrt") return Metric::kCbrt;
-  throw std::invalid_argument("unknown metric '" + name + "' (expected l2, relative, cosine, log or cbrt)");
+  for (Metric m : AllMetrics())
+    if (name == MetricName(m)) return m;
+  throw std::invalid_argument("unknown metric '" + name + "' (expected " + Expected(AllMetrics(), MetricName) + ")");
 }
 
 std::string MetricName(Metric m) {
@@ -51,15 +65,39 @@ std::string MetricName(Metric m) {
   return "?";
 }
 
+const std::vector<Loss>& AllLosses() {
+  static const std::vector<Loss> kAll = {Loss::kNone, Loss::kHuber, Loss::kCauchy};
+  return kAll;
+}
+
+std::string LossName(Loss l) {
+  switch (l) {
+    case Loss::kNone: return "none";
+    case Loss::kHuber: return "huber";
+    case Loss::kCauchy: return "cauchy";
+  }
+  return "?";
+}
+
+Loss ParseLoss(const std::string& name) {
+  for (Loss l : AllLosses())
+    if (name == LossName(l)) return l;
+  throw std::invalid_argument("unknown loss '" + name + "' (expected " + Expected(AllLosses(), LossName) + ")");
+}
+
+const std::vector<LinearSolver>& AllLinearSolvers() {
+  static const std::vector<LinearSolver> kAll = {LinearSolver::kDenseQr, LinearSolver::kDenseNormalCholesky,
+                                                 LinearSolver::kIterativeSchur, LinearSolver::kCgnr};
+  return kAll;
+}
+
 LinearSolver ParseLinearSolver(const std::string& name) {
   std::string n = name;
   for (char& c : n) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  if (n == "dense_qr") return LinearSolver::kDenseQr;
-  if (n == "dense_normal_cholesky") return LinearSolver::kDenseNormalCholesky;
-  if (n == "iterative_schur") return LinearSolver::kIterativeSchur;
-  if (n == "cgnr") return LinearSolver::kCgnr;
-  throw std::invalid_argument("unknown linear solver '" + name +
-                              "' (expected dense_qr, dense_normal_cholesky, iterative_schur or cgnr)");
+  for (LinearSolver s : AllLinearSolvers())
+    if (n == LinearSolverName(s)) return s;
+  throw std::invalid_argument("unknown linear solver '" + name + "' (expected " +
+                              Expected(AllLinearSolvers(), LinearSolverName) + ")");
 }
 
 std::string LinearSolverName(LinearSolver s) {
@@ -329,7 +367,7 @@ class Engine {
     b_ = model.Make<double>();
     // Derivative slots: one per scalar parameter and one per colour
     // parameter, shared by its r, g, b slots. Channel c of f_r depends only
-    // on slot c of each colour parameter (checked below), so the shared
+    // on slot c of each colour parameter (the models declare it), so the shared
     // slot's derivative in channel c is the derivative by the c slot: Jets
     // of 3 slots instead of 7 for lambert+ggx.
     for (const ParamInfo& p : info.params)
@@ -338,7 +376,7 @@ class Engine {
         channel_.push_back(p.colour ? c : -1);
         if (c == (p.colour ? 2 : 0)) ++n_slots_;
       }
-    const bool shared = n_slots_ < n_ && ChannelsSeparate(model);
+    const bool shared = n_slots_ < n_ && b_->ChannelsIndependent();
     if (!shared) {
       for (std::size_t k = 0; k < n_; ++k) {
         slot_[k] = k;
@@ -448,46 +486,6 @@ class Engine {
       }
     }
     return true;
-  }
-
-  // Whether channel c of f_r has zero derivative by every colour slot of
-  // another channel, at parameter points spread over the bounds and
-  // direction pairs over the hemisphere (full Jets of every packed slot).
-  template <int N>
-  bool ChannelsSeparateAt(const Bxdf<Jet<N>>& b, const ModelInfo& info) const {
-    std::mt19937_64 rng(7);
-    std::uniform_real_distribution<double> uni(0.0, 1.0);
-    for (int trial = 0; trial < 16; ++trial) {
-      std::array<Jet<N>, N> pj;
-      std::size_t k = 0;
-      for (const ParamInfo& p : info.params)
-        for (int c = 0; c < (p.colour ? 3 : 1); ++c, ++k) {
-          // The defaults, then random points of the multi-start ranges.
-          double v = p.default_value;
-          if (trial > 0 && p.scale == ParamInfo::Scale::kLog && p.default_value > 0) {
-            const double l = std::max(p.lower, p.default_value / 30), h = std::min(p.upper, p.default_value * 30);
-            v = std::exp(std::log(l) + uni(rng) * (std::log(h) - std::log(l)));
-          } else if (trial > 0) {
-            v = p.lower + uni(rng) * (p.upper - p.lower);
-          }
-          pj[k] = Jet<N>(v, static_cast<int>(k));
-        }
-      const double ti = std::acos(uni(rng)), to = std::acos(uni(rng)), ph = 2 * kPi * uni(rng);
-      const Vec3<Jet<N>> wi(Jet<N>(std::sin(ti)), Jet<N>(0.0), Jet<N>(std::cos(ti)));
-      const Vec3<Jet<N>> wo(Jet<N>(std::sin(to) * std::cos(ph)), Jet<N>(std::sin(to) * std::sin(ph)),
-                            Jet<N>(std::cos(to)));
-      const Rgb<Jet<N>> f = b.Eval(pj.data(), wi, wo);
-      for (int c = 0; c < 3; ++c)
-        for (std::size_t j = 0; j < n_; ++j)
-          if (channel_[j] >= 0 && channel_[j] != c && f[c].v[j] != 0.0) return false;
-    }
-    return true;
-  }
-  bool ChannelsSeparate(const Model& model) const {
-    const ModelInfo& info = model.Info();
-    if (n_ <= 8) return ChannelsSeparateAt<8>(*MakeJet8(model), info);
-    if (n_ <= 16) return ChannelsSeparateAt<16>(*MakeJet16(model), info);
-    return ChannelsSeparateAt<32>(*MakeJet32(model), info);
   }
 
   Model model_;

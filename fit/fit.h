@@ -63,6 +63,11 @@ enum class Loss { kNone, kHuber, kCauchy };
 
 Metric ParseMetric(const std::string& name);  // throws std::invalid_argument
 std::string MetricName(Metric m);
+const std::vector<Metric>& AllMetrics();
+// "none", "huber", "cauchy"; throws std::invalid_argument naming the text.
+Loss ParseLoss(const std::string& name);
+std::string LossName(Loss l);
+const std::vector<Loss>& AllLosses();
 
 // One measurement: directions in the local frame (unit, z = normal), f_r per
 // channel in 1/sr, and its standard deviation (0 when unknown).
@@ -93,6 +98,7 @@ Dataset LoadDataset(const std::string& path);
 enum class LinearSolver { kDenseQr, kDenseNormalCholesky, kIterativeSchur, kCgnr };
 LinearSolver ParseLinearSolver(const std::string& name);  // throws std::invalid_argument
 std::string LinearSolverName(LinearSolver s);
+const std::vector<LinearSolver>& AllLinearSolvers();
 
 struct Options {
   Metric metric = Metric::kL2;

@@ -9,7 +9,7 @@
 #include <vector>
 
 #include "brdf/model.h"
-#include "validate/quadrature.h"
+#include "brdf/quadrature.h"
 
 namespace brdfkit::test {
 
@@ -49,7 +49,7 @@ inline std::vector<double> RandomParams(const ModelInfo& info, std::mt19937_64& 
 inline double HemisphereIntegral(const std::function<double(const Eigen::Vector3d&)>& g, int theta_nodes = 24,
                                  int phi_nodes = 96, double theta_min = 1e-5,
                                  const Eigen::Vector3d& clip = Eigen::Vector3d::Zero()) {
-  const validate::GaussLegendre gt(theta_nodes), gp(phi_nodes);
+  const GaussLegendre gt(theta_nodes), gp(phi_nodes);
   std::vector<double> breaks = {0.0};
   for (double t = theta_min; t < kPi / 2; t *= 2) breaks.push_back(t);
   breaks.push_back(kPi / 2);

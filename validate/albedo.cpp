@@ -29,61 +29,11 @@
 
 #include "brdf/atomic_file.h"
 #include "brdf/params.h"
-#include "validate/quadrature.h"
+#include "brdf/quadrature.h"
 
 namespace brdfkit::validate {
 
 namespace {
-
-// Gauss-Kronrod 7/15 nodes and weights on [-1, 1] (Piessens et al. 1983,
-// QUADPACK qk15). Kronrod nodes xk[1], xk[3], xk[5], xk[7] are the Gauss nodes.
-constexpr std::array<double, 8> kXk = {0.991455371120812639206854697526329, 0.949107912342758524526189684047851,
-                                       0.864864423359769072789712788640926, 0.741531185599394439863864773280788,
-                                       0.586087235467691130294144845693013, 0.405845151377397166906606412076961,
-                                       0.207784955007898467600689403773245, 0.0};
-constexpr std::array<double, 8> kWk = {0.022935322010529224963732008058970, 0.063092092629978553290700663189204,
-                                       0.104790010322250183839876322541518, 0.140653259715525918745189590510238,
-                                       0.169004726639267902826583426598550, 0.190350578064785409913256402421014,
-                                       0.204432940075298892414161999234649, 0.209482141084727828012999174891714};
-constexpr std::array<double, 4> kWg = {0.129484966168869693270611432679082, 0.279705391489276667901467771423780,
-                                       0.381830050505118944950369775488975, 0.417959183673469387755102040816327};
-
-struct Interval {
-  double a, b;
-  Eigen::Array3d value;
-  double error;
-};
-
-Interval Kronrod15(const std::function<Eigen::Array3d(double)>& f, double a, double b) {
-  const double c = 0.5 * (a + b), h = 0.5 * (b - a);
-  std::array<Eigen::Array3d, 15> fv;
-  fv[7] = f(c);
-  for (int j = 0; j < 7; ++j) {
-    fv[j] = f(c - h * kXk[j]);
-    fv[14 - j] = f(c + h * kXk[j]);
-  }
-  Eigen::Array3d k = kWk[7] * fv[7], g = kWg[3] * fv[7], kabs = kWk[7] * fv[7].abs();
-  for (int j = 0; j < 7; ++j) {
-    k += kWk[j] * (fv[j] + fv[14 - j]);
-    kabs += kWk[j] * (fv[j].abs() + fv[14 - j].abs());
-    if (j % 2 == 1) g += kWg[j / 2] * (fv[j] + fv[14 - j]);
-  }
-  const Eigen::Array3d mean = 0.5 * k;
-  Eigen::Array3d asc = kWk[7] * (fv[7] - mean).abs();
-  for (int j = 0; j < 7; ++j) asc += kWk[j] * ((fv[j] - mean).abs() + (fv[14 - j] - mean).abs());
-  // QUADPACK's error estimate: |K15 - G7| scaled by (200 |K - G| / resasc)^1.5,
-  // and never below the rounding level of the absolute integral.
-  double err = 0;
-  for (int ch = 0; ch < 3; ++ch) {
-    double e = std::abs((k[ch] - g[ch]) * h);
-    const double resasc = asc[ch] * h;
-    if (resasc > 0 && e > 0) e = resasc * std::min(1.0, std::pow(200.0 * e / resasc, 1.5));
-    const double resabs = kabs[ch] * std::abs(h);
-    e = std::max(e, 50.0 * std::numeric_limits<double>::epsilon() * resabs);
-    err = std::max(err, e);
-  }
-  return {a, b, k * h, err};
-}
 
 constexpr double kHalfPi = 0.5 * kPi;
 
@@ -98,85 +48,23 @@ void GeometricBreaks(double width, double start, double limit, std::vector<doubl
 Eigen::Array3d AdaptiveGaussKronrod(const std::function<Eigen::Array3d(double)>& f, double a, double b,
                                     std::vector<double> breakpoints, double abs_tolerance, int max_subdivisions,
                                     double* error, std::int64_t* evals) {
-  std::vector<double> pts{a};
-  std::sort(breakpoints.begin(), breakpoints.end());
-  for (double x : breakpoints)
-    if (x > pts.back() && x < b) pts.push_back(x);
-  pts.push_back(b);
-  std::vector<Interval> heap;
-  const auto by_error = [](const Interval& l, const Interval& r) { return l.error < r.error; };
-  for (std::size_t i = 0; i + 1 < pts.size(); ++i) {
-    if (!(pts[i + 1] > pts[i])) continue;
-    heap.push_back(Kronrod15(f, pts[i], pts[i + 1]));
-  }
-  std::int64_t n = 15 * static_cast<std::int64_t>(heap.size());
-  std::make_heap(heap.begin(), heap.end(), by_error);
-  double total_error = 0;
-  for (const Interval& iv : heap) total_error += iv.error;
-  for (int it = 0; it < max_subdivisions && total_error > abs_tolerance && !heap.empty(); ++it) {
-    std::pop_heap(heap.begin(), heap.end(), by_error);
-    const Interval worst = heap.back();
-    heap.pop_back();
-    const double mid = 0.5 * (worst.a + worst.b);
-    // An interval that cannot be split in double precision is final.
-    if (!(mid > worst.a && mid < worst.b)) {
-      heap.push_back(worst);
-      std::push_heap(heap.begin(), heap.end(), by_error);
-      break;
-    }
-    const Interval l = Kronrod15(f, worst.a, mid), r = Kronrod15(f, mid, worst.b);
-    n += 30;
-    total_error += l.error + r.error - worst.error;
-    heap.push_back(l);
-    std::push_heap(heap.begin(), heap.end(), by_error);
-    heap.push_back(r);
-    std::push_heap(heap.begin(), heap.end(), by_error);
-  }
-  Eigen::Array3d sum = Eigen::Array3d::Zero();
-  double err = 0;
-  for (const Interval& iv : heap) {
-    sum += iv.value;
-    err += iv.error;
-  }
-  if (error) *error = err;
+  std::int64_t n = 0;
+  const auto g = [&](double x) {
+    ++n;
+    return QuadValue{f(x), Eigen::Array3d::Zero()};
+  };
+  const QuadValue r = AdaptiveKronrod(g, a, b, std::move(breakpoints), abs_tolerance, 0.0, max_subdivisions,
+                                      [] { return false; });
+  if (error) *error = r.error.maxCoeff();
   if (evals) *evals += n;
-  return sum;
+  return r.value;
 }
 
 LobeShape EstimateLobeShape(const Bxdf<double>& bxdf, const double* p) {
   LobeShape shape;
-  // Angle (radians) where g falls to half of g(0) along the two axes, by
-  // bisection on [0, pi/2); pi/2 when it never does.
-  const auto half_angle = [](const std::function<double(double)>& g) {
-    const double g0 = g(0);
-    if (!(g0 > 0) || !std::isfinite(g0)) return 1.0;
-    if (g(1.4) >= 0.5 * g0) return 1.0;
-    double lo = 0, hi = 1.4;
-    for (int i = 0; i < 60; ++i) {
-      const double mid = 0.5 * (lo + hi);
-      (g(mid) >= 0.5 * g0 ? lo : hi) = mid;
-    }
-    return std::max(hi, 1e-12);
-  };
-  double width = 1.0;
-  for (int axis = 0; axis < 2; ++axis) {
-    const auto dir = [axis](double t) {
-      return axis == 0 ? Eigen::Vector3d(std::sin(t), 0, std::cos(t)) : Eigen::Vector3d(0, std::sin(t), std::cos(t));
-    };
-    double w;
-    if (const MicrofacetView<double>* mf = bxdf.Microfacet()) {
-      w = half_angle([&](double t) { return mf->D(p, dir(t)); });
-    } else {
-      // f_r at normal viewing against the half-vector angle t (wi at 2t).
-      const Eigen::Vector3d wo(0, 0, 1);
-      w = half_angle([&](double t) {
-        if (2 * t >= kHalfPi) return 0.0;
-        return bxdf.Eval(p, dir(2 * t), wo).mean() * std::cos(2 * t);
-      });
-    }
-    width = std::min(width, w);
-  }
-  shape.width = width;
+  // The model's declared lobe width; a model without a glossy lobe is broad.
+  const LobeWidth lobe = bxdf.Width(p);
+  shape.width = lobe.Any() ? std::min(1.0, lobe.Min()) : 1.0;
   // Mirror symmetry about the xz plane, tested at fixed pairs spread over the
   // hemisphere with wo in the plane.
   shape.mirror_symmetric = true;

@@ -56,12 +56,12 @@ struct AlbedoValue {
 
 // Facts about a model at one parameter point that steer the quadrature.
 struct LobeShape {
-  double width = 1.0;            // angular half-width of the specular lobe in wm, radians
+  double width = 1.0;            // angular width of the narrowest glossy lobe in wm, radians (about alpha)
   bool mirror_symmetric = true;  // f(wi, wo) unchanged by reflecting both about the xz plane
 };
 
-// Width from the microfacet distribution D when there is one (angle where D
-// falls to half its peak), otherwise from f_r at normal incidence.
+// Width from the model's declared lobe width (Bxdf::Width; 1 when it has
+// no glossy lobe), mirror symmetry tested on fixed direction pairs.
 LobeShape EstimateLobeShape(const Bxdf<double>& bxdf, const double* params);
 
 // E(wo) per channel, wo a unit vector with wo.z > 0.
@@ -216,6 +216,9 @@ class CompensatedBxdf final : public Bxdf<double> {
   }
   double SampleWeight(const double* p) const override { return base_.SampleWeight(p); }
   bool CanSample() const override { return base_.CanSample(); }
+  unsigned Kind() const override { return base_.Kind(); }
+  LobeWidth Width(const double* p) const override { return base_.Width(p); }
+  bool ChannelsIndependent() const override { return base_.ChannelsIndependent(); }
 
  private:
   const Bxdf<double>& base_;

@@ -82,7 +82,6 @@ bool RotationInvariant(const Bxdf<double>& bxdf, const double* p) {
 CheckResult CheckPlausibility(const Bxdf<double>& bxdf, const double* p, const CheckOptions& o) {
   const auto t0 = std::chrono::steady_clock::now();
   CheckResult r;
-  const ModelInfo& info = bxdf.Info();
 
   // --- reciprocity and values ---
   r.min_value = std::numeric_limits<double>::infinity();
@@ -255,7 +254,7 @@ CheckResult CheckPlausibility(const Bxdf<double>& bxdf, const double* p, const C
   // --- sampling consistency ---
   // The chi-square bins (20 x 40 over the hemisphere, 6 x 6 Gauss points
   // each) cannot resolve the pdf of a lobe much narrower than a bin.
-  const double lobe_width = LobeWidth(info, p);
+  const double lobe_width = bxdf.Width(p).Min();
   if (o.sampling && !bxdf.CanSample())
     r.sampling_note = "not checked: the model provides no Sample/Pdf";
   else if (o.sampling && lobe_width > 0 && lobe_width < kMinSampledLobeWidth)
@@ -304,7 +303,7 @@ CheckResult CheckPlausibility(const Bxdf<double>& bxdf, const double* p, const C
   // --- microfacet normalisation ---
   if (const MicrofacetView<double>* mf = bxdf.Microfacet()) {
     r.microfacet = true;
-    const double width = std::max(LobeWidth(info, p), 1e-7);
+    const double width = std::max(bxdf.Width(p).Min(), 1e-7);
     IntegrateOptions mo = io;
     mo.abs_tolerance = 1e-9;
     const Estimate dn = IntegrateHemisphere(

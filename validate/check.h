@@ -34,7 +34,7 @@
 
 namespace brdfkit::validate {
 
-// Lobes narrower than this (radians, validate::LobeWidth) are not sampled
+// Lobes narrower than this (radians, the model's declared Bxdf::Width) are not sampled
 // against the chi-square bins, which cannot resolve them.
 inline constexpr double kMinSampledLobeWidth = 0.03;
 

@@ -179,6 +179,7 @@ TEST(Check, ErrorBarAcrossOneIsInconclusiveUntilTightened) {
 // A model with Eval alone (no Sample/Pdf) is checked for everything but
 // sampling, which is skipped with a note.
 struct EvalOnlyLobe {
+  static constexpr unsigned kKind = LobeKind::kDiffuse;
   explicit EvalOnlyLobe(const Settings& = {}) {}
   static ModelInfo Info() {
     ModelInfo info;

@@ -9,7 +9,7 @@
 #include <limits>
 #include <stdexcept>
 
-#include "validate/quadrature.h"
+#include "brdf/quadrature.h"
 #include "validate/sobol.h"
 
 namespace brdfkit::validate {
@@ -319,75 +319,7 @@ struct AdaptiveResult {
   std::int64_t evals = 0;
 };
 
-// Gauss-Kronrod 15-point nodes (positive half) and weights; the Gauss
-// 7-point rule uses the odd-indexed nodes (QUADPACK qk15).
-constexpr double kXgk[8] = {0.991455371120812639206854697526329, 0.949107912342758524526189684047851,
-                            0.864864423359769072789712788640926, 0.741531185599394439863864773280788,
-                            0.586087235467691130294144845693013, 0.405845151377397166906606412076961,
-                            0.207784955007898467600689403773245, 0.0};
-constexpr double kWgk[8] = {0.022935322010529224963732008058970, 0.063092092629978553290700663189204,
-                            0.104790010322250183839876322541518, 0.140653259715525918745189590510238,
-                            0.169004726639267902826583426598550, 0.190350578064785409913256402421014,
-                            0.204432940075298892414161999234649, 0.209482141084727828012999174891714};
-constexpr double kWg[4] = {0.129484966168869693270611432679082, 0.279705391489276667901467771423780,
-                           0.381830050505118944950369775488975, 0.417959183673469387755102040816327};
-
-// Value of an integrand at a point and the error already made computing it
-// (an inner integral's error estimate; zero for a plain function).
-struct PointValue {
-  Array3d value = Array3d::Zero();
-  Array3d error = Array3d::Zero();
-};
-
-struct Segment {
-  double a = 0, b = 0;
-  Array3d value = Array3d::Zero();
-  Array3d error = Array3d::Zero();  // |K15 - G7| plus the carried errors of its nodes
-  double key = 0;                   // largest channel error, for the priority queue
-  bool operator<(const Segment& o) const { return key < o.key; }
-};
-
-template <typename F>
-Segment Kronrod(F& f, double a, double b) {
-  const double c = 0.5 * (a + b), h = 0.5 * (b - a);
-  Segment s;
-  s.a = a;
-  s.b = b;
-  Array3d k = Array3d::Zero(), g = Array3d::Zero(), carried = Array3d::Zero(), abs_sum = Array3d::Zero();
-  Array3d fv[15];
-  int idx = 0;
-  for (int j = 0; j < 8; ++j) {
-    const int npts = j == 7 ? 1 : 2;
-    for (int side = 0; side < npts; ++side) {
-      const double x = side == 0 ? c - h * kXgk[j] : c + h * kXgk[j];
-      const PointValue v = f(x);
-      fv[idx++] = v.value;
-      k += kWgk[j] * v.value;
-      abs_sum += kWgk[j] * v.value.abs();
-      carried += kWgk[j] * v.error;
-      if (j % 2 == 1) g += kWg[j / 2] * v.value;
-    }
-  }
-  // QUADPACK qk15 error estimate: |K15 - G7| scaled by the integrand's
-  // variation over the segment, (200 |K - G| / resasc)^1.5 resasc, with a
-  // floor of 50 machine epsilons of the absolute integral for rounding.
-  const Array3d mean = k * 0.5;
-  Array3d resasc = Array3d::Zero();
-  idx = 0;
-  for (int j = 0; j < 8; ++j)
-    for (int side = 0; side < (j == 7 ? 1 : 2); ++side) resasc += kWgk[j] * (fv[idx++] - mean).abs();
-  const double ah = std::abs(h);
-  Array3d err = ((k - g) * ah).abs();
-  for (int ch = 0; ch < 3; ++ch) {
-    const double ra = resasc[ch] * ah;
-    if (ra > 0 && err[ch] > 0) err[ch] = ra * std::min(1.0, std::pow(200.0 * err[ch] / ra, 1.5));
-    err[ch] = std::max(err[ch], 50.0 * std::numeric_limits<double>::epsilon() * abs_sum[ch] * ah);
-  }
-  s.value = k * h;
-  s.error = err + carried * ah;
-  s.key = s.error.maxCoeff();
-  return s;
-}
+using PointValue = QuadValue;
 
 struct Counter {
   std::int64_t evals = 0;
@@ -395,51 +327,14 @@ struct Counter {
   bool Spent() const { return evals >= budget; }
 };
 
-// Globally adaptive quadrature over [-1, 1] split at `breaks`: bisects the
-// segment with the largest error until the total error meets the tolerance
-// or the evaluation budget is spent.
+// Globally adaptive quadrature over [-1, 1] split at `breaks` (at most
+// max_segments segments) until the total error meets the tolerance or the
+// evaluation budget is spent.
 template <typename F>
-PointValue Adapt(F& f, std::vector<double> breaks, double abs_tol, double rel_tol, const Counter& counter,
+PointValue Adapt(F& f, const std::vector<double>& breaks, double abs_tol, double rel_tol, const Counter& counter,
                  int max_segments = 400) {
-  breaks.push_back(-1.0);
-  breaks.push_back(1.0);
-  std::sort(breaks.begin(), breaks.end());
-  std::vector<Segment> heap;
-  for (std::size_t i = 0; i + 1 < breaks.size(); ++i) {
-    const double a = std::max(-1.0, breaks[i]), b = std::min(1.0, breaks[i + 1]);
-    if (b - a > 1e-12) heap.push_back(Kronrod(f, a, b));
-  }
-  std::make_heap(heap.begin(), heap.end());
-  auto totals = [&heap](Array3d& value, Array3d& error) {
-    value = error = Array3d::Zero();
-    for (const Segment& s : heap) {
-      value += s.value;
-      error += s.error;
-    }
-  };
-  Array3d value, error;
-  totals(value, error);
-  while (!heap.empty() && !counter.Spent() && int(heap.size()) < max_segments) {
-    const Array3d target = (rel_tol * value.abs()).max(abs_tol);
-    if ((error <= target).all()) break;
-    std::pop_heap(heap.begin(), heap.end());
-    const Segment worst = heap.back();
-    const double mid = 0.5 * (worst.a + worst.b);
-    // Segments this short cannot be split further in double precision.
-    if (!(mid > worst.a && mid < worst.b) || worst.b - worst.a < 1e-14) {
-      heap.back().key = -1;  // keep it, but never pick it again
-      std::push_heap(heap.begin(), heap.end());
-      if (heap.front().key < 0) break;
-      continue;
-    }
-    heap.pop_back();
-    heap.push_back(Kronrod(f, worst.a, mid));
-    std::push_heap(heap.begin(), heap.end());
-    heap.push_back(Kronrod(f, mid, worst.b));
-    std::push_heap(heap.begin(), heap.end());
-    totals(value, error);
-  }
-  return PointValue{value, error};
+  return AdaptiveKronrod(f, -1.0, 1.0, breaks, abs_tol, rel_tol, max_segments - int(breaks.size()) - 1,
+                         [&counter] { return counter.Spent(); });
 }
 
 // Maps sigma in [-1, 1] onto [lo, hi] by a cubic whose derivative vanishes at
@@ -536,18 +431,6 @@ struct Rect {
   Array3d Error() const { return err_x + err_y; }
 };
 
-// QUADPACK's scaling of a raw |K - G| difference (qk15): resasc
-// min(1, (200 |K - G| / resasc)^1.5), floored at 50 machine epsilons of the
-// absolute integral for rounding.
-Array3d QuadpackError(const Array3d& raw, const Array3d& resasc, const Array3d& resabs) {
-  Array3d e = raw;
-  for (int c = 0; c < 3; ++c) {
-    if (resasc[c] > 0 && e[c] > 0) e[c] = resasc[c] * std::min(1.0, std::pow(200.0 * e[c] / resasc[c], 1.5));
-    e[c] = std::max(e[c], 50.0 * std::numeric_limits<double>::epsilon() * resabs[c]);
-  }
-  return e;
-}
-
 // Globally adaptive cubature over a slope chart (Genz & Malik 1980 strategy,
 // with a product Gauss-Kronrod 15 x 15 rule): the rectangle with the largest
 // error is halved along the axis whose embedded Gauss rule disagrees most.
@@ -561,14 +444,9 @@ AdaptiveResult AdaptiveSlope(const SlopeChart& chart, Warp warp, double y_lo, do
   if (!(y_hi > y_lo)) return out;
   const AxisMap my(warp, 1.0, y_lo, y_hi);
   std::int64_t evals = 0;
-  double nodes[15], wk[15], wg[15];
-  for (int j = 0, i = 0; j < 8; ++j) {
-    for (int side = 0; side < (j == 7 ? 1 : 2); ++side, ++i) {
-      nodes[i] = side == 0 ? -kXgk[j] : kXgk[j];
-      wk[i] = kWgk[j];
-      wg[i] = j % 2 == 1 ? kWg[j / 2] : 0.0;
-    }
-  }
+  const auto& nodes = kGk15.x;
+  const auto& wk = kGk15.wk;
+  const auto& wg = kGk15.wg;
   auto evaluate = [&](Rect r) {
     const double cy = 0.5 * (r.y0 + r.y1), hy = 0.5 * (r.y1 - r.y0);
     const double cx = 0.5 * (r.x0 + r.x1), hx = 0.5 * (r.x1 - r.x0);
@@ -812,12 +690,6 @@ Estimate Run(const Problem& pb, Method method, const IntegrateOptions& o) {
   throw std::invalid_argument("unknown integration method");
 }
 
-// Last component of a dotted lobe parameter name ("ggx#2.alpha" -> "alpha").
-std::string BaseName(const std::string& name) {
-  const auto dot = name.rfind('.');
-  return dot == std::string::npos ? name : name.substr(dot + 1);
-}
-
 }  // namespace
 
 const char* MethodName(Method method) {
@@ -847,41 +719,6 @@ Method ParseMethod(const std::string& text) {
   throw std::invalid_argument("unknown integration method '" + text + "' (expected one of: " + known + ")");
 }
 
-// Roughness of the narrowest lobe along x and y (0 if none).
-void LobeRoughness(const ModelInfo& info, const double* params, double& ax, double& ay) {
-  ax = ay = 0;
-  auto take = [](double& cur, double v) { cur = cur > 0 ? std::min(cur, v) : v; };
-  for (std::size_t i = 0; i < info.params.size(); ++i) {
-    const ParamInfo& p = info.params[i];
-    if (p.colour) continue;
-    const std::string b = BaseName(p.name);
-    const double v = params[info.Offset(i)];
-    if (!(v > 0) || !std::isfinite(v)) continue;
-    if (b == "alpha" || b == "m") {
-      take(ax, v);
-      take(ay, v);
-    } else if (b == "alpha_x") {
-      take(ax, v);
-    } else if (b == "alpha_y") {
-      take(ay, v);
-    } else if (b == "n" && p.upper > 10) {
-      // Phong-type exponent: cos^n ~ exp(-n theta^2 / 2), the Beckmann lobe
-      // with alpha^2 = 2 / (n + 2) (Walter 2007, sec. 5.2).
-      const double a = std::sqrt(2.0 / (v + 2.0));
-      take(ax, a);
-      take(ay, a);
-    }
-  }
-  if (ax > 0 && !(ay > 0)) ay = ax;
-  if (ay > 0 && !(ax > 0)) ax = ay;
-}
-
-double LobeWidth(const ModelInfo& info, const double* params) {
-  double ax, ay;
-  LobeRoughness(info, params, ax, ay);
-  return std::min(ax, ay);
-}
-
 Estimate DirectionalAlbedo(const Bxdf<double>& bxdf, const double* params, const Vector3d& wo_in, Method method,
                            const IntegrateOptions& options) {
   if (!(wo_in.norm() > 0) || !wo_in.allFinite())
@@ -907,8 +744,10 @@ Estimate DirectionalAlbedo(const Bxdf<double>& bxdf, const double* params, const
   pb.bxdf = &bxdf;
   pb.params = params;
   pb.wo = wo;
-  LobeRoughness(bxdf.Info(), params, pb.alpha_x, pb.alpha_y);
-  if (pb.alpha_x > 0) {
+  const LobeWidth lobe = bxdf.Width(params);
+  if (lobe.Any() && std::isfinite(lobe.x) && std::isfinite(lobe.y)) {
+    pb.alpha_x = lobe.x;
+    pb.alpha_y = lobe.y;
     pb.peak = Reflect<double>(wo);
     pb.width = 2.0 * std::max(pb.alpha_x, pb.alpha_y);
     // A half-vector lobe of solid angle pi ax ay maps to 4 (wo.h) pi ax ay

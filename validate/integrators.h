@@ -15,8 +15,9 @@
 //                    plane, slopes stretched by the roughness and the
 //                    horizon mapped to the edges of the rectangles, accurate
 //                    for mirror-like lobes (alpha down to 1e-4) and grazing wo;
-//                    models without a roughness parameter are integrated in
-//                    (phi, cos theta) with nested adaptive Gauss-Kronrod.
+//                    models that declare no lobe width (Bxdf::Width) are
+//                    integrated in (phi, cos theta) with nested adaptive
+//                    Gauss-Kronrod.
 //
 // Every estimate carries an honest absolute error: the standard error (times
 // a safety factor) for Monte Carlo, the spread of replicates for QMC, the
@@ -77,11 +78,5 @@ Estimate DirectionalAlbedo(const Bxdf<double>& bxdf, const double* params, const
 Estimate IntegrateHemisphere(const std::function<Eigen::Array3d(const Eigen::Vector3d&)>& g, Method method,
                              const IntegrateOptions& options, const Eigen::Vector3d& peak = Eigen::Vector3d::Zero(),
                              double width = 0, double width_y = 0, const Eigen::Vector3d& cut = Eigen::Vector3d::Zero());
-
-// Angular width (radians, about the lobe's roughness alpha) of a model's
-// narrowest lobe at these parameters, read from parameters named alpha,
-// alpha_x, alpha_y, m or n (Phong-type exponent: width ~ sqrt(2 / (n + 2)));
-// 0 when the model has none.
-double LobeWidth(const ModelInfo& info, const double* params);
 
 }  // namespace brdfkit::validate

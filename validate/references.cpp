@@ -6,7 +6,7 @@
 
 #include "brdf/model.h"
 #include "brdf/params.h"
-#include "validate/quadrature.h"
+#include "brdf/quadrature.h"
 
 namespace brdfkit::validate {
 

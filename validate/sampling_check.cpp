@@ -4,7 +4,7 @@
 #include <random>
 #include <stdexcept>
 
-#include "validate/quadrature.h"
+#include "brdf/quadrature.h"
 
 namespace brdfkit::validate {
 
