@@ -18,6 +18,9 @@
 #include "brdf/he.h"
 #include "brdf/poulin_fournier.h"
 #include "brdf/merl.h"
+#include "brdf/rgl.h"
+#include "brdf/utia.h"
+#include "brdf/astm.h"
 
 namespace brdfkit {
 
@@ -45,6 +48,9 @@ using RegisteredModels = std::tuple<
     Kajiya,
     He,
     PoulinFournier,
-    Merl>;
+    Merl,
+    Rgl,
+    Utia,
+    Astm>;
 
 }  // namespace brdfkit

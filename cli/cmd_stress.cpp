@@ -139,6 +139,10 @@ void RegisterStress(CLI::App& app) {
   static bool json = false, sweep_only = false;
   cmd->add_option("--model,-m", models, "registered model name (repeat for several); default: every model");
   cmd->add_option("--merl", merl, "a MERL .binary file to sweep the merl model over (otherwise it is skipped)");
+  static std::string rgl, utia, astm;
+  cmd->add_option("--rgl", rgl, "an RGL .bsdf file for the rgl model (otherwise it is skipped)");
+  cmd->add_option("--utia", utia, "a UTIA file for the utia model (otherwise it is skipped)");
+  cmd->add_option("--astm", astm, "an ASTM E1392 table for the astm model (otherwise it is skipped)");
   cmd->add_flag("--json", json, "print JSON: one object per model and type, plus the stiff cases");
   cmd->add_flag("--sweep-only", sweep_only, "skip the stiff integrals and fits");
   cmd->add_option("--output,-o", output, "also write the JSON report to this file (written atomically)");
@@ -154,6 +158,11 @@ void RegisterStress(CLI::App& app) {
       MerlTable::Read(merl);  // a bad file is named here, before the sweep
       so.settings.push_back({"merl", Settings{{"path", merl}}});
     }
+    for (const auto& [name, file] : {std::pair{"rgl", rgl}, std::pair{"utia", utia}, std::pair{"astm", astm}})
+      if (!file.empty()) {
+        (void)Model::Parse(name, Settings{{"path", file}});  // a bad file is named here, before the sweep
+        so.settings.push_back({name, Settings{{"path", file}}});
+      }
     const auto t0 = std::chrono::steady_clock::now();
     const std::vector<validate::StressRow> rows = validate::RunStress(so);
     const double sweep_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();

@@ -8,6 +8,7 @@
 
 #include "brdf/model.h"
 #include "brdf/params.h"
+#include "formats/convert.h"
 #include "tests/test_util.h"
 #include "validate/sampling_check.h"
 
@@ -45,6 +46,29 @@ Settings SettingsFor(const ModelInfo& info) {
     s["path"] = path;
   }
 #endif
+  // The measured formats, written from a known analytic material (RGL at a
+  // reduced resolution).
+  static const char* kFormats[][2] = {{"rgl", ".bsdf"}, {"utia", ".utia"}, {"astm", ".astm"}};
+  for (const auto& [name, ext] : kFormats) {
+    if (info.name != name) continue;
+    const auto file = std::filesystem::temp_directory_path() / (std::string("brdfkit_properties_test") + ext);
+    static std::map<std::string, bool> written;
+    if (!written[name]) {
+      const Model m = Model::Parse("lambert+ggx");
+      const auto b = m.Make<double>();
+      const std::vector<double> p = ParseParams(m.Info(), "lambert.albedo=0.3:0.4:0.5,ggx.alpha=0.4,ggx.f0=0.5");
+      formats::ConvertOptions o;
+      o.rgl.theta_i = 6;
+      o.rgl.ndf = 32;
+      o.rgl.sigma = o.rgl.vndf = o.rgl.samples = 16;
+      o.step_deg = 15;
+      formats::WriteFormat(file.string(), [&](const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) {
+        return b->Eval(p.data(), wi, wo);
+      }, o);
+      written[name] = true;
+    }
+    s["path"] = file.string();
+  }
   return s;
 }
 
