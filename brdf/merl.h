@@ -485,23 +485,10 @@ class Merl : public CosineSampling {
     return std::max(sum / count, 0.0);
   }
 
-  // Half-vector angle (radians) where the mean of f_r cos_i at normal view
-  // falls to half its value at the mirror direction, by bisection along x;
-  // 1 (a broad lobe) when it does not fall that far within 80 degrees.
   double EstimateWidth() const {
-    const Eigen::Vector3d wo(0, 0, 1);
-    const auto g = [&](double t) {
-      const Eigen::Vector3d wi(std::sin(2 * t), 0, std::cos(2 * t));
-      return table_->Lookup(wi, wo, trilinear_).mean() * wi.z();
-    };
-    const double g0 = g(0);
-    if (!(g0 > 0) || g(0.7) >= 0.5 * g0) return 1.0;
-    double lo = 0, hi = 0.7;
-    for (int i = 0; i < 50; ++i) {
-      const double mid = 0.5 * (lo + hi);
-      (g(mid) >= 0.5 * g0 ? lo : hi) = mid;
-    }
-    return std::max(hi, 1e-4);  // below the table's resolution in theta_h
+    return MeasuredLobeWidth([&](const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) {
+      return table_->Lookup(wi, wo, trilinear_);
+    });
   }
 
   std::shared_ptr<const MerlTable> table_;

@@ -20,6 +20,9 @@
 #include "brdf/he.h"
 #include "brdf/poulin_fournier.h"
 #include "brdf/merl.h"
+#include "brdf/rgl.h"
+#include "brdf/utia.h"
+#include "brdf/astm.h"
 
 namespace brdfkit {
 
@@ -47,6 +50,9 @@ using RegisteredModels = std::tuple<
     Kajiya,
     He,
     PoulinFournier,
-    Merl>;
+    Merl,
+    Rgl,
+    Utia,
+    Astm>;
 
 }  // namespace brdfkit

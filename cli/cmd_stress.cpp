@@ -137,7 +137,7 @@ struct StressRun {
   bool clean = true;
 };
 
-StressRun RunAll(const std::vector<std::string>& models, const std::string& merl, bool sweep_only) {
+StressRun RunAll(const std::vector<std::string>& models, const MeasuredFiles& files, bool sweep_only) {
   validate::StressOptions so;
   for (const std::string& m : models) {
     bool known = false;
@@ -147,10 +147,11 @@ StressRun RunAll(const std::vector<std::string>& models, const std::string& merl
                        DidYouMean(m, Model::KnownModelNames()));
     so.models.push_back(m);
   }
-  if (!merl.empty()) {
-    MerlTable::Read(merl);  // a bad file is named here, before the sweep
-    so.settings.push_back({"merl", Settings{{"path", merl}}});
-  }
+  for (const auto& [name, file] : files)
+    if (!file.empty()) {
+      (void)Model::Parse(name, Settings{{"path", file}});  // a bad file is named here, before the sweep
+      so.settings.push_back({name, Settings{{"path", file}}});
+    }
   const auto t0 = std::chrono::steady_clock::now();
   StressRun run;
   run.rows = validate::RunStress(so);
@@ -202,8 +203,8 @@ nlohmann::json RunJson(const StressRun& run) {
 
 }  // namespace
 
-nlohmann::json StressJson(const std::vector<std::string>& models, const std::string& merl, bool sweep_only) {
-  return RunJson(RunAll(models, merl, sweep_only));
+nlohmann::json StressJson(const std::vector<std::string>& models, const MeasuredFiles& files, bool sweep_only) {
+  return RunJson(RunAll(models, files, sweep_only));
 }
 
 void RegisterStress(CLI::App& app) {
@@ -215,11 +216,15 @@ void RegisterStress(CLI::App& app) {
   static bool json = false, sweep_only = false;
   cmd->add_option("--model,-m", models, "registered model name (repeat for several); default: every model");
   cmd->add_option("--merl", merl, "a MERL .binary file to sweep the merl model over (otherwise it is skipped)");
+  static std::string rgl, utia, astm;
+  cmd->add_option("--rgl", rgl, "an RGL .bsdf file for the rgl model (otherwise it is skipped)");
+  cmd->add_option("--utia", utia, "a UTIA file for the utia model (otherwise it is skipped)");
+  cmd->add_option("--astm", astm, "an ASTM E1392 table for the astm model (otherwise it is skipped)");
   cmd->add_flag("--json", json, "print JSON: one object per model and type, plus the stiff cases");
   cmd->add_flag("--sweep-only", sweep_only, "skip the stiff integrals and fits");
   cmd->add_option("--output,-o", output, "also write the JSON report to this file (written atomically)");
   cmd->callback([] {
-    const StressRun run = RunAll(models, merl, sweep_only);
+    const StressRun run = RunAll(models, {{"merl", merl}, {"rgl", rgl}, {"utia", utia}, {"astm", astm}}, sweep_only);
     const nlohmann::json j = RunJson(run);
     const auto& rows = run.rows;
     const auto& integrals = run.integrals;

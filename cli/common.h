@@ -60,5 +60,6 @@ void RegisterConvergence(CLI::App& app);  // cmd_convergence.cpp
 void RegisterCheck(CLI::App& app);   // cmd_check.cpp
 void RegisterAlbedo(CLI::App& app);  // cmd_albedo.cpp
 void RegisterStress(CLI::App& app);  // cmd_stress.cpp
+void RegisterConvert(CLI::App& app);  // cmd_convert.cpp
 
 }  // namespace brdfkit::cli

@@ -34,7 +34,9 @@ nlohmann::json AlbedoTableJson(const validate::AlbedoTable& t);
 // cmd_stress.cpp: the JSON of `brdfkit stress --json` for registered model
 // names (empty: every model), an optional MERL file for the merl model, and
 // the stiff integrals and fits unless sweep_only (or models are named).
-nlohmann::json StressJson(const std::vector<std::string>& models, const std::string& merl, bool sweep_only);
+// Measured models and their files (merl, rgl, utia, astm); an empty path skips the model.
+using MeasuredFiles = std::vector<std::pair<std::string, std::string>>;
+nlohmann::json StressJson(const std::vector<std::string>& models, const MeasuredFiles& files, bool sweep_only);
 
 // cmd_convergence.cpp: writes convergence.csv, convergence.svg and
 // convergence_summary.md into out_dir.

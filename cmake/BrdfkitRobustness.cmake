@@ -29,7 +29,7 @@ if(BRDFKIT_ROBUSTNESS_TESTS AND NOT BRDFKIT_SANITIZE)
     COMMAND ${CMAKE_COMMAND} -DSOURCE_DIR=${PROJECT_SOURCE_DIR}/tests/fuzz -DBINARY_DIR=${_fuzz_tree}
             -DCXX=${BRDFKIT_CLANGXX} -DMAIN_BUILD=${PROJECT_BINARY_DIR} -P ${PROJECT_SOURCE_DIR}/cmake/FuzzBuild.cmake)
   set_tests_properties(fuzz_build PROPERTIES FIXTURES_SETUP fuzz_targets TIMEOUT 900 COST 500)
-  set(_targets merl csv instrument)
+  set(_targets merl rgl utia astm csv instrument)
   if(EXISTS ${PROJECT_SOURCE_DIR}/cli/scene.h)
     list(APPEND _targets scene)
   endif()
@@ -38,9 +38,14 @@ if(BRDFKIT_ROBUSTNESS_TESTS AND NOT BRDFKIT_SANITIZE)
     if(NOT EXISTS ${_dict})
       set(_dict "")
     endif()
+    # The three measured-data readers share the stage time of one.
+    set(_seconds ${BRDFKIT_FUZZ_SECONDS})
+    if(_t MATCHES "^(rgl|utia|astm)$")
+      math(EXPR _seconds "(${BRDFKIT_FUZZ_SECONDS} + 2) / 3")
+    endif()
     add_test(NAME fuzz_${_t}
       COMMAND ${CMAKE_COMMAND} -DEXE=${_fuzz_tree}/fuzz_${_t} -DCORPUS=${PROJECT_SOURCE_DIR}/tests/fuzz/corpus/${_t}
-              -DWORK_DIR=${_fuzz_tree}/run_${_t} -DSECONDS=${BRDFKIT_FUZZ_SECONDS} -DDICT=${_dict}
+              -DWORK_DIR=${_fuzz_tree}/run_${_t} -DSECONDS=${_seconds} -DDICT=${_dict}
               -P ${PROJECT_SOURCE_DIR}/cmake/FuzzRun.cmake)
     set_tests_properties(fuzz_${_t} PROPERTIES FIXTURES_REQUIRED fuzz_targets TIMEOUT 600 COST 100)
   endforeach()

@@ -19,8 +19,11 @@
 #include <stdexcept>
 #include <thread>
 
+#include "brdf/astm.h"
 #include "brdf/merl.h"
 #include "brdf/params.h"
+#include "brdf/rgl.h"
+#include "brdf/utia.h"
 #include "data_synth/forward_model.h"
 #include "data_synth/instrument.h"
 #include "data_synth/table_io.h"
@@ -182,13 +185,65 @@ Dataset FromMerl(const MerlTable& table, const std::string& source) {
   return d;
 }
 
+namespace {
+
+Dataset FromAngleSamples(const std::vector<AngleSample>& rows, const std::string& source) {
+  Dataset d;
+  d.source = source;
+  for (const AngleSample& r : rows)
+    d.samples.push_back({FromAngles(r.theta_i, r.phi_i), FromAngles(r.theta_o, r.phi_o), r.f, Eigen::Array3d::Zero()});
+  return d;
+}
+
+bool StartsWith(const std::string& path, const std::string& magic) {
+  std::ifstream in(path, std::ios::binary);
+  std::string head(magic.size(), '\0');
+  return in.read(head.data(), std::streamsize(head.size())) && head == magic;
+}
+
+}  // namespace
+
+// The nodes of an RGL file (wi at each slice, wo by its warp, the cosine
+// divided out), every node pair of a UTIA file, the rows of an ASTM table.
+Dataset FromRgl(const RglBsdf& file, const std::string& source) {
+  Dataset d;
+  d.source = source;
+  for (const RglBsdf::NodeSample& n : file.NodeSamples()) d.samples.push_back({n.wi, n.wo, n.f, Eigen::Array3d::Zero()});
+  return d;
+}
+
+Dataset FromUtia(const UtiaTable& table, const std::string& source) {
+  Dataset d;
+  d.source = source;
+  using U = UtiaTable;
+  for (int ti = 0; ti < U::kTheta; ++ti)
+    for (int pi = 0; pi < U::kPhi; ++pi)
+      for (int tv = 0; tv < U::kTheta; ++tv)
+        for (int pv = 0; pv < U::kPhi; ++pv) {
+          const std::size_t n = U::Index(ti, pi, tv, pv);
+          const Eigen::Array3d f(table.values[n], table.values[U::kPlane + n], table.values[2 * U::kPlane + n]);
+          d.samples.push_back({U::NodeDirection(ti, pi), U::NodeDirection(tv, pv), f, Eigen::Array3d::Zero()});
+        }
+  return d;
+}
+
 Dataset LoadDataset(const std::string& path) {
   namespace fs = std::filesystem;
   std::error_code ec;
-  const bool merl_name = fs::path(path).extension() == ".binary";
-  Dataset d = merl_name || (fs::is_regular_file(path, ec) && LooksLikeMerl(path))
-                  ? FromMerl(MerlTable::Read(path), path)
-                  : FromTable(synth::ReadTableCsv(path), path);
+  std::string ext = fs::path(path).extension().string();
+  for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  const bool regular = fs::is_regular_file(path, ec);
+  Dataset d;
+  if (ext == ".bsdf" || (regular && StartsWith(path, std::string("tensor_file\0", 12))))
+    d = FromRgl(RglBsdf::Read(path), path);
+  else if (ext == ".utia" || (ext == ".bin" && regular && fs::file_size(path, ec) == UtiaTable::kFileSize))
+    d = FromUtia(UtiaTable::Read(path), path);
+  else if (ext == ".astm")
+    d = FromAngleSamples(AstmTable::Read(path).rows, path);
+  else if (ext == ".binary" || (regular && LooksLikeMerl(path)))
+    d = FromMerl(MerlTable::Read(path), path);
+  else
+    d = FromTable(synth::ReadTableCsv(path), path);
   const std::string side = path + ".json";
   if (fs::is_regular_file(side, ec)) {
     // The sidecar is a description, not data: one that cannot be read

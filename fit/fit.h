@@ -50,6 +50,8 @@ class CostFunction;
 
 namespace brdfkit {
 class MerlTable;
+class RglBsdf;
+class UtiaTable;
 namespace synth {
 struct BrdfTable;
 struct Instrument;
@@ -91,8 +93,13 @@ Dataset FromTable(const synth::BrdfTable& table, const std::string& source = "")
 // Bin centres of a MERL table (phi_h = 0); a cell missing in any channel or
 // whose centre puts a direction at the horizon is counted in `missing`.
 Dataset FromMerl(const MerlTable& table, const std::string& source = "");
-// Reads a MERL binary (by the MERL header) or a CSV table, and the
-// apertures from a synthetic measurement's sidecar FILE.json.
+// The nodes of an RGL file (cosine divided out) and every node pair of a UTIA file.
+Dataset FromRgl(const RglBsdf& file, const std::string& source = "");
+Dataset FromUtia(const UtiaTable& table, const std::string& source = "");
+// Reads an RGL .bsdf (by its magic), a UTIA file (.utia, or .bin of the UTIA
+// size), an ASTM E1392 table (.astm), a MERL binary (by the MERL header) or
+// a CSV table, and the apertures from a synthetic measurement's sidecar
+// FILE.json.
 Dataset LoadDataset(const std::string& path);
 
 enum class LinearSolver { kDenseQr, kDenseNormalCholesky, kIterativeSchur, kCgnr };

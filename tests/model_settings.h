@@ -1,9 +1,10 @@
 // Settings that build every registered model in the cross-module tests: a
-// model built from a file (merl) gets one made from a known analytic
-// material, written once per test program.
+// model built from a file (merl, rgl, utia, astm) gets one made from a known
+// analytic material, written once per test program.
 #pragma once
 
 #include <filesystem>
+#include <map>
 #include <string>
 
 #include "brdf/model.h"
@@ -12,6 +13,10 @@
 #if __has_include("brdf/merl.h")
 #include "brdf/merl.h"
 #define BRDFKIT_HAVE_MERL 1
+#endif
+#if __has_include("formats/convert.h")
+#include "formats/convert.h"
+#define BRDFKIT_HAVE_FORMATS 1
 #endif
 
 namespace brdfkit::test {
@@ -31,6 +36,31 @@ inline Settings SettingsFor(const ModelInfo& info) {
       return file.string();
     }();
     s["path"] = path;
+  }
+#endif
+#ifdef BRDFKIT_HAVE_FORMATS
+  // The measured formats, written from a known analytic material (RGL at a
+  // reduced resolution).
+  static const char* kFormats[][2] = {{"rgl", ".bsdf"}, {"utia", ".utia"}, {"astm", ".astm"}};
+  for (const auto& [name, ext] : kFormats) {
+    if (info.name != name) continue;
+    const auto file = std::filesystem::temp_directory_path() / (std::string("brdfkit_properties_test") + ext);
+    static std::map<std::string, bool> written;
+    if (!written[name]) {
+      const Model m = Model::Parse("lambert+ggx");
+      const auto b = m.Make<double>();
+      const std::vector<double> p = ParseParams(m.Info(), "lambert.albedo=0.3:0.4:0.5,ggx.alpha=0.4,ggx.f0=0.5");
+      formats::ConvertOptions o;
+      o.rgl.theta_i = 6;
+      o.rgl.ndf = 32;
+      o.rgl.sigma = o.rgl.vndf = o.rgl.samples = 16;
+      o.step_deg = 15;
+      formats::WriteFormat(file.string(), [&](const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) {
+        return b->Eval(p.data(), wi, wo);
+      }, o);
+      written[name] = true;
+    }
+    s["path"] = file.string();
   }
 #endif
   return s;

@@ -239,7 +239,7 @@ py::dict Stress(const std::vector<std::string>& models, const std::string& merl,
   nlohmann::json j;
   {
     py::gil_scoped_release release;
-    j = cli::StressJson(models, merl, sweep_only);
+    j = cli::StressJson(models, {{"merl", merl}}, sweep_only);
   }
   return ToPython(j);
 }

@@ -1,0 +1,47 @@
+// Conversions between measured-data formats: MERL (.binary), RGL-EPFL
+// (.bsdf), UTIA (.utia, or .bin of the UTIA size), ASTM E1392 (.astm) and
+// brdfkit CSV (.csv). An input is read as a BRDF function (a registered
+// model for the first four; the nearest sample for CSV); an output is
+// tabulated from any BRDF function at the target's own nodes.
+#pragma once
+
+#include <nlohmann/json.hpp>
+
+#include <memory>
+#include <string>
+
+#include "formats/rgl_writer.h"
+
+namespace brdfkit::formats {
+
+enum class Format { kMerl, kRgl, kUtia, kAstm, kCsv };
+std::string FormatName(Format f);
+
+// By the file name's extension; throws std::invalid_argument naming the path.
+Format FormatOfName(const std::string& path);
+// The format of an existing file: by extension, then checked against its
+// header (magic, size or keywords); throws std::runtime_error naming the
+// file when they disagree.
+Format DetectFormat(const std::string& path);
+
+struct Source {
+  BrdfFunction f;
+  Format format = Format::kCsv;
+  bool anisotropic = false;           // UTIA files, and tables whose incident azimuths vary
+  std::shared_ptr<const void> keep;   // the data f reads
+};
+// Reads a measured file as a BRDF function.
+Source LoadSource(const std::string& path);
+
+struct ConvertOptions {
+  RglOptions rgl;             // rgl.phi_i < 0: isotropic unless the source is anisotropic (then 24)
+  double step_deg = 5;        // ASTM / CSV grid: theta_i, theta_o 0..85 and phi_o 0..360 in this step
+  int phi_i = -1;             // ASTM / CSV incident azimuths over [0, 360); < 0: 1, or 8 for anisotropic sources
+  bool anisotropic = false;
+};
+
+// Tabulates f into `path` (format by its extension), atomically. Returns
+// what the sidecar records about the target: its format and resolution.
+nlohmann::json WriteFormat(const std::string& path, const BrdfFunction& f, const ConvertOptions& options);
+
+}  // namespace brdfkit::formats

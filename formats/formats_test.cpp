@@ -1,0 +1,335 @@
+// Measured-data formats: container layout, round trips, closed forms,
+// cross-format agreement, the RGL writer's reconstruction, fits from every
+// format, and bad input.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+
+#include "brdf/astm.h"
+#include "brdf/merl.h"
+#include "brdf/model.h"
+#include "brdf/params.h"
+#include "brdf/rgl.h"
+#include "brdf/utia.h"
+#include "fit/fit.h"
+#include "formats/convert.h"
+#include "formats/rgl_writer.h"
+#include "tests/cli_util.h"
+
+namespace brdfkit::formats {
+namespace {
+
+namespace fs = std::filesystem;
+
+fs::path Scratch(const std::string& name) {
+  const fs::path d = fs::temp_directory_path() / "brdfkit_formats_test";
+  fs::create_directories(d);
+  return d / name;
+}
+
+Eigen::Vector3d Dir(double theta, double phi) { return SphericalDirection(theta, phi); }
+
+struct Analytic {
+  Model model;
+  std::vector<double> params;
+  std::unique_ptr<Bxdf<double>> b;
+  Analytic(const std::string& spec, const std::string& p)
+      : model(Model::Parse(spec)), params(ParseParams(model.Info(), p)), b(model.Make<double>()) {}
+  BrdfFunction Function() const {
+    return [this](const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) { return b->Eval(params.data(), wi, wo); };
+  }
+};
+
+// Reduced resolutions keep the tests fast; the defaults are measured in bench/.
+RglOptions Small() {
+  RglOptions o;
+  o.theta_i = 12;
+  o.ndf = 128;
+  o.sigma = 32;
+  o.vndf = 48;
+  o.samples = 48;
+  return o;
+}
+
+TEST(TensorFile, ContainerBytesAsTheFormatDefines) {
+  TensorFile t;
+  t.Add("jacobian", std::vector<unsigned char>{1});
+  t.Add("theta_i", std::vector<float>{0.0f, 0.5f, 1.0f}, {3});
+  const std::vector<unsigned char> b = t.Serialise();
+  ASSERT_GE(b.size(), 18u);
+  EXPECT_EQ(std::string(reinterpret_cast<const char*>(b.data()), 12), std::string("tensor_file\0", 12));
+  EXPECT_EQ(b[12], 1);
+  EXPECT_EQ(b[13], 0);
+  EXPECT_EQ(b[14] | b[15] << 8 | b[16] << 16 | b[17] << 24, 2);
+  // First entry: name length 8, "jacobian", ndim 1, dtype u8, offset, shape 1.
+  EXPECT_EQ(b[18] | b[19] << 8, 8);
+  EXPECT_EQ(std::string(reinterpret_cast<const char*>(b.data()) + 20, 8), "jacobian");
+  EXPECT_EQ(b[28] | b[29] << 8, 1);
+  EXPECT_EQ(b[30], TensorFile::kU8);
+  std::uint64_t offset = 0, shape = 0;
+  for (int k = 0; k < 8; ++k) offset |= std::uint64_t(b[31 + k]) << (8 * k);
+  for (int k = 0; k < 8; ++k) shape |= std::uint64_t(b[39 + k]) << (8 * k);
+  EXPECT_EQ(shape, 1u);
+  EXPECT_EQ(offset % 8, 0u);
+  EXPECT_EQ(b[offset], 1);
+  const TensorFile back = TensorFile::Parse(b, "test");
+  ASSERT_EQ(back.fields.size(), 2u);
+  EXPECT_EQ(back.fields[1].shape, std::vector<std::uint64_t>{3});
+  EXPECT_EQ(TensorFile::Floats(back.fields[1]), (std::vector<float>{0.0f, 0.5f, 1.0f}));
+  EXPECT_EQ(back.fields[1].dtype, TensorFile::kF32);
+}
+
+// The VNDF warp's inverse undoes the warp, and the warp of a bilinear
+// density reproduces its CDFs.
+TEST(Warp2D, InvertUndoesSample) {
+  std::vector<float> d;
+  for (int y = 0; y < 5; ++y)
+    for (int x = 0; x < 7; ++x) d.push_back(float(1 + x * x + 3 * y));
+  const Warp2D w(d, 5, 7, {}, true);
+  for (double sx : {0.0, 0.1, 0.37, 0.5, 0.93, 1.0})
+    for (double sy : {0.0, 0.2, 0.61, 1.0}) {
+      const auto u = w.Sample(sx, sy, 0);
+      const auto s = w.Invert(u[0], u[1], w.Mix(nullptr));
+      EXPECT_NEAR(s[0], sx, 1e-12);
+      EXPECT_NEAR(s[1], sy, 1e-12);
+    }
+  // A constant density warps the square onto itself.
+  const Warp2D flat(std::vector<float>(12, 2.0f), 3, 4, {}, true);
+  const auto u = flat.Sample(0.3, 0.8, 0);
+  EXPECT_NEAR(u[0], 0.3, 1e-14);
+  EXPECT_NEAR(u[1], 0.8, 1e-14);
+}
+
+TEST(Cie, ObserverIntegralsMatchTheTabulatedCie1931) {
+  // CIE 1931 2-degree observer summed at 1 nm over 360-830 nm: 106.857 (y-bar).
+  double y = 0;
+  for (int l = 360; l <= 830; ++l) y += cie::Xyz(l)[1];
+  EXPECT_NEAR(y / 106.857, 1.0, 5e-3);
+  // A flat spectrum is neutral with the value it has.
+  const auto w = cie::RgbWeights({380, 480, 580, 680, 780});
+  for (int c = 0; c < 3; ++c) {
+    double s = 0;
+    for (const auto& k : w) s += 0.3 * k[c];
+    EXPECT_NEAR(s, 0.3, 1e-12);
+  }
+}
+
+// At every node the reconstruction returns the source's f (float rounding).
+TEST(RglWriter, NodesReproduceTheSource) {
+  const Analytic g("lambert+ggx", "lambert.albedo=0.2:0.3:0.4,ggx.alpha=0.3,ggx.f0=0.6");
+  const RglBsdf r = RglBsdf::FromTensors(MakeRgl(g.Function(), Small()), "test");
+  const auto nodes = r.NodeSamples();
+  ASSERT_GT(nodes.size(), 10000u);
+  double worst = 0;
+  for (const auto& n : nodes) {
+    if (n.wo.z() < 0.05) continue;
+    const Rgb<double> ref = g.Function()(n.wi, n.wo);
+    for (int c = 0; c < 3; ++c) worst = std::max(worst, std::abs(n.f[c] - ref[c]) / ref[c]);
+  }
+  EXPECT_LT(worst, 1e-4);
+}
+
+// Between the nodes: the interpolation error at reduced resolution, with
+// the bounds the measurements in bench/RESULTS.md give for it.
+TEST(RglWriter, ReconstructionAccuracy) {
+  struct Case {
+    const char* spec;
+    const char* params;
+    double mean, p99;
+  } cases[] = {{"ggx", "alpha=0.05", 0.003, 0.01}, {"ggx", "alpha=0.3", 0.003, 0.03}, {"lambert", "albedo=0.7", 0.01, 0.12}};
+  for (const Case& c : cases) {
+    SCOPED_TRACE(std::string(c.spec) + " " + c.params);
+    const Analytic g(c.spec, c.params);
+    const RglBsdf r = RglBsdf::FromTensors(MakeRgl(g.Function(), Small()), "test");
+    const RglAccuracy a = MeasureRglAccuracy(r, g.Function(), 75, 20);
+    EXPECT_GT(a.points, 1000u);
+    EXPECT_LT(a.mean_relative, c.mean);
+    EXPECT_LT(a.p99_relative, c.p99);
+  }
+}
+
+// Lambert rho/pi through every format.
+TEST(Formats, LambertReadsRhoOverPiInEveryFormat) {
+  const Analytic l("lambert", "albedo=0.2:0.5:0.8");
+  ConvertOptions o;
+  o.rgl = Small();
+  o.rgl.phi_i = 0;
+  o.step_deg = 15;
+  const Eigen::Vector3d wi = Dir(0.4, 0.3), wo = Dir(0.7, 2.5);
+  for (const char* ext : {".binary", ".bsdf", ".utia", ".astm", ".csv"}) {
+    SCOPED_TRACE(ext);
+    const fs::path p = Scratch(std::string("lambert") + ext);
+    WriteFormat(p.string(), l.Function(), o);
+    const Source s = LoadSource(p.string());
+    const Rgb<double> f = s.f(wi, wo);
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(f[c], l.params[c] / kPi, 2e-3 * l.params[c] / kPi);
+  }
+}
+
+// MERL -> RGL -> eval against the MERL file's own values.
+TEST(Formats, MerlToRglAgreesWithMerl) {
+  const Analytic g("lambert+ggx", "lambert.albedo=0.1:0.2:0.3,ggx.alpha=0.25,ggx.f0=0.8");
+  const fs::path merl = Scratch("cross.binary"), rgl = Scratch("cross.bsdf");
+  MerlTable::FromFunction([&](const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) { return g.Function()(wi, wo); })
+      .Write(merl.string());
+  const Source m = LoadSource(merl.string());
+  ConvertOptions o;
+  o.rgl = Small();
+  WriteFormat(rgl.string(), m.f, o);
+  const Model rm = Model::Parse("rgl", Settings{{"path", rgl.string()}});
+  const auto rb = rm.Make<double>();
+  std::vector<double> errors;
+  for (double ti : {0.2, 0.5, 0.9})
+    for (double to : {0.1, 0.4, 0.8, 1.1})
+      for (double po : {0.5, 1.5, 2.6, 3.1}) {
+        const Eigen::Vector3d wi = Dir(ti, 0), wo = Dir(to, po);
+        const Rgb<double> a = m.f(wi, wo), b = rb->Eval(nullptr, wi, wo);
+        for (int c = 0; c < 3; ++c) errors.push_back(std::abs(a[c] - b[c]) / a[c]);
+      }
+  std::sort(errors.begin(), errors.end());
+  EXPECT_LT(errors[errors.size() / 2], 0.01);  // MERL's own nearest-bin lookup has steps of this size
+  EXPECT_LT(errors.back(), 0.1);
+}
+
+TEST(Formats, UtiaAndAstmRoundTripsAgainstTheModel) {
+  const Analytic g("ggx_aniso", "alpha_x=0.3,alpha_y=0.6,f0=0.5");
+  const fs::path u = Scratch("aniso.utia"), a = Scratch("aniso.astm");
+  ConvertOptions o;
+  o.step_deg = 15;
+  o.phi_i = 4;
+  WriteFormat(u.string(), g.Function(), o);
+  WriteFormat(a.string(), g.Function(), o);
+  const UtiaTable t = UtiaTable::Read(u.string());
+  // At the nodes exactly; a node pair straddled by the interpolation in between.
+  for (int ti : {0, 2, 5})
+    for (int pv : {0, 7, 47}) {
+      const Eigen::Vector3d wi = UtiaTable::NodeDirection(ti, 3), wo = UtiaTable::NodeDirection(2, pv);
+      const Rgb<double> ref = g.Function()(wi, wo), got = t.Lookup(wi, wo);
+      for (int c = 0; c < 3; ++c) EXPECT_NEAR(got[c], ref[c], 1e-12 * ref[c]);
+    }
+  const AstmTable at = AstmTable::Read(a.string());
+  ASSERT_EQ(at.rows.size(), 7u * 4 * 6 * 24);
+  const Model am = Model::Parse("astm", Settings{{"path", a.string()}});
+  const auto ab = am.Make<double>();
+  for (std::size_t k = 0; k < at.rows.size(); k += 97) {
+    const AngleSample& s = at.rows[k];
+    const Eigen::Vector3d wi = SphericalDirection(s.theta_i, s.phi_i), wo = SphericalDirection(s.theta_o, s.phi_o);
+    const Rgb<double> ref = g.Function()(wi, wo);
+    for (int c = 0; c < 3; ++c) EXPECT_EQ(s.f[c], ref[c]);  // shortest decimals read back exactly
+    if (s.theta_i > 0 && s.theta_o > 0) EXPECT_EQ(ab->Eval(nullptr, wi, wo)[0], s.f[0]);
+  }
+}
+
+// Fits from each format recover the model that wrote the file.
+TEST(Formats, FitsFromEveryFormatRecoverTheWritingModel) {
+  const Analytic g("ggx", "alpha=0.3,f0=0.6");
+  ConvertOptions o;
+  o.rgl = Small();
+  o.rgl.samples = 24;
+  o.rgl.theta_i = 8;
+  o.step_deg = 10;
+  for (const char* ext : {".bsdf", ".utia", ".astm"}) {
+    SCOPED_TRACE(ext);
+    const fs::path p = Scratch(std::string("fit") + ext);
+    WriteFormat(p.string(), g.Function(), o);
+    fit::Dataset d = fit::LoadDataset(p.string());
+    ASSERT_GT(d.samples.size(), 1000u);
+    fit::Options fo;
+    fo.initial = ParseParams(g.model.Info(), "alpha=0.5,f0=0.3");
+    fo.covariance = false;
+    fo.max_theta_deg = 80;
+    const fit::Result r = fit::Fit(g.model, d, fo);
+    EXPECT_NEAR(r.params[0], 0.3, 0.003);
+    for (int c = 1; c < 4; ++c) EXPECT_NEAR(r.params[c], 0.6, 0.006);
+  }
+}
+
+// Bad input: each reader names the file and the field or line.
+void ExpectError(const std::function<void()>& f, const std::vector<std::string>& words) {
+  try {
+    f();
+    ADD_FAILURE() << "no error";
+  } catch (const std::runtime_error& e) {
+    for (const std::string& w : words) EXPECT_NE(std::string(e.what()).find(w), std::string::npos) << e.what();
+  }
+}
+
+void WriteBytes(const fs::path& p, const std::vector<unsigned char>& b) {
+  std::ofstream(p, std::ios::binary).write(reinterpret_cast<const char*>(b.data()), std::streamsize(b.size()));
+}
+
+TEST(Formats, BadRglFilesAreNamed) {
+  const Analytic l("lambert", "albedo=0.5");
+  RglOptions o = Small();
+  o.samples = o.vndf = 8;
+  o.ndf = 16;
+  o.sigma = 8;
+  o.theta_i = 3;
+  const TensorFile good = MakeRgl(l.Function(), o);
+  const std::vector<unsigned char> bytes = good.Serialise();
+  const fs::path p = Scratch("bad.bsdf");
+  const std::string ps = p.string();
+  auto with = [&](std::vector<unsigned char> b) { WriteBytes(p, b); return [ps] { RglBsdf::Read(ps); }; };
+  std::vector<unsigned char> b = bytes;
+  b[0] = 'x';
+  ExpectError(with(b), {ps, "magic"});
+  b = bytes;
+  b[12] = 2;
+  ExpectError(with(b), {ps, "version 2.0"});
+  ExpectError(with(std::vector<unsigned char>(bytes.begin(), bytes.begin() + 200)), {ps, "past the end"});
+  auto mutate = [&](const std::string& field, auto change) {
+    TensorFile t = good;
+    for (auto& f : t.fields)
+      if (f.name == field) change(f);
+    return with(t.Serialise());
+  };
+  ExpectError(mutate("ndf", [](TensorFile::Field& f) { f.dtype = TensorFile::kF64; f.bytes.resize(f.bytes.size() * 2); }),
+              {ps, "'ndf'", "float64"});
+  ExpectError(mutate("vndf", [](TensorFile::Field& f) { f.shape[1] = 2; f.bytes.resize(f.Count() * 4); }), {ps, "'vndf'", "shape"});
+  ExpectError(mutate("sigma", [](TensorFile::Field& f) { f.bytes[4] = 0xff; f.bytes[5] = 0xff; f.bytes[6] = 0xff; f.bytes[7] = 0x7f; }),
+              {ps, "'sigma'", "non-finite"});
+  ExpectError(mutate("ndf", [](TensorFile::Field& f) { f.bytes[3] = 0xbf; }), {ps, "'ndf'", "negative"});
+  ExpectError(mutate("rgb", [](TensorFile::Field& f) { f.name = "rgbx"; }), {ps, "neither"});
+}
+
+TEST(Formats, BadUtiaAndAstmFilesAreNamed) {
+  const fs::path u = Scratch("bad.utia");
+  WriteBytes(u, std::vector<unsigned char>(1000, 0));
+  ExpectError([&] { UtiaTable::Read(u.string()); }, {u.string(), "1000 bytes"});
+  std::vector<unsigned char> b(UtiaTable::kFileSize, 0);
+  b[8 * 5 + 7] = 0xbf;  // value 5 = -x
+  b[8 * 5 + 6] = 0xf0;
+  WriteBytes(u, b);
+  ExpectError([&] { UtiaTable::Read(u.string()); }, {u.string(), "negative", "red"});
+  const fs::path a = Scratch("bad.astm");
+  auto text = [&](const std::string& s) { std::ofstream(a) << s; return [&] { AstmTable::Read(a.string()); }; };
+  ExpectError(text("VARS theta_i,phi_i,theta_s,phi_s,R,G,B\n0,0,0,0,1,1,1\n"), {a.string(), "NUM_POINTS"});
+  ExpectError(text("NUM_POINTS 1\nVARS theta_i,phi_i,theta_s,phi_s,R,G,B\n0,0,0,0,1,1\n"), {a.string(), "line 3", "short row"});
+  ExpectError(text("NUM_POINTS 2\nVARS theta_i,phi_i,theta_s,phi_s,BRDF\n0,0,0,0,1\n"), {a.string(), "line 1", "NUM_POINTS says 2"});
+  ExpectError(text("NUM_POINTS 1\nVARS theta_i,phi_i,theta_s,phi_s,BRDF\n0,0,2.5,0,1\n"), {a.string(), "line 3", "theta_s"});
+}
+
+// The command: exit code 2 and nothing written for bad input; a sidecar.
+TEST(Formats, ConvertCommand) {
+  const fs::path out = Scratch("cmd.bsdf"), bad = Scratch("cmd_bad.utia"), out2 = Scratch("cmd_out.astm");
+  fs::remove(out2);
+  WriteBytes(bad, std::vector<unsigned char>(64, 0));
+  const auto r = test::Brdfkit("convert " + bad.string() + " " + out2.string());
+  EXPECT_EQ(r.code, 2) << r.out;
+  EXPECT_NE(r.out.find(bad.string()), std::string::npos) << r.out;
+  EXPECT_FALSE(fs::exists(out2));
+  const auto ok = test::Brdfkit("convert --model lambert --params albedo=0.4 --rgl-samples 16 --rgl-vndf 16 --rgl-theta-i 4 " +
+                                out.string());
+  ASSERT_EQ(ok.code, 0) << ok.out;
+  const std::string side = test::ReadText(out.string() + ".json");
+  EXPECT_NE(side.find("\"rgl\""), std::string::npos);
+  EXPECT_NE(side.find("reconstruction"), std::string::npos);
+  const auto ev = test::Brdfkit("eval --model rgl:" + out.string() + " --wi-deg 20,0 --wo-deg 40,120 --json");
+  ASSERT_EQ(ev.code, 0) << ev.out;
+  EXPECT_NE(ev.out.find("0.127"), std::string::npos) << ev.out;  // 0.4 / pi = 0.1273
+}
+
+}  // namespace
+}  // namespace brdfkit::formats

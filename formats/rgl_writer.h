@@ -1,0 +1,71 @@
+// Writing RGL-EPFL tensor files (brdf/rgl.h) from any BRDF: a model, a sum
+// of lobes, a fit result or a measured table, isotropic or anisotropic.
+//
+// The file is built so that the format's own reconstruction reproduces the
+// source, following the acquisition of Dupuy & Jakob 2018 (sec. 4-5):
+//  1. ndf: D(wm) estimated from the retro-reflection, D ~ f(wm, wm) cos^2
+//     theta_m (for a microfacet BRDF f(w, w) = F G2 D / (4 cos^2 theta)),
+//     floored at 1e-5 of its maximum so that every direction keeps some
+//     density, normalised so that int D cos(theta_m) dw = 1;
+//  2. sigma(wi) = int D(m) <wi, m>+ dm, by the trapezoidal rule over the
+//     ndf nodes;
+//  3. vndf per slice (phi_i, theta_i): (D(wm) + 0.2 sigma(wi) / pi) <wi, wm>+
+//     / sigma(wi) times the Jacobian 2 pi^2 u_x sin(theta_m) of the warped
+//     square (jacobian = 1): the visible normals plus a uniform share (about
+//     a sixth of the nodes) for the tails and the horizon;
+//  4. rgb at the uniform N x M nodes s of each slice: wm = V(s), the warp of
+//     the float32 vndf as the reader builds it, wo the reflection of wi
+//     about wm, value = f(wi, wo) cos(theta_o) 4 sigma(wi) / D(wm) with
+//     sigma and D the reader's bilinear values (0 where wo is below the
+//     horizon); luminance is the Rec. 709 luminance of rgb.
+// At every node the reconstruction then returns f cos(theta_o) to float32
+// rounding; between nodes its error is that of the interpolation, measured
+// by RglAccuracy.
+#pragma once
+
+#include <Eigen/Core>
+
+#include <functional>
+#include <string>
+
+#include "brdf/core.h"
+#include "brdf/rgl.h"
+
+namespace brdfkit::formats {
+
+// f_r(wi, wo) in 1/sr per channel, unit directions in the upper hemisphere.
+using BrdfFunction = std::function<Rgb<double>(const Eigen::Vector3d& wi, const Eigen::Vector3d& wo)>;
+
+struct RglOptions {
+  int theta_i = 24;          // incident elevation slices, uniform over [0, theta_max]
+  double theta_max_deg = 87.5;
+  int phi_i = 0;             // 0: isotropic; otherwise azimuth slices over [-pi, pi] (the last repeats the first)
+  int ndf = 256;             // ndf resolution (square)
+  int sigma = 64;            // sigma resolution (square)
+  int vndf = 64;             // vndf resolution per slice (square)
+  int samples = 64;          // value tables per slice: samples x samples
+  std::string description = "written by brdfkit";
+};
+
+// Throws std::invalid_argument on bad options, std::runtime_error on
+// non-finite values of f.
+TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options);
+// Atomic: the complete file or nothing.
+void WriteRgl(const std::string& path, const BrdfFunction& f, const RglOptions& options);
+
+// Reconstruction error of `file` against f over a grid of directions: for
+// each incident direction (theta_i from 0 to theta_max_deg in steps of
+// step_deg, offset by half a step; azimuths 0, 50, 100 ... degrees for
+// anisotropic files) and each outgoing direction on a 1 x 2 degree grid,
+// relative error of f cos(theta_o) per channel, where the source value is
+// above `threshold` times its maximum over wo for that wi.
+struct RglAccuracy {
+  double max_relative = 0;
+  double mean_relative = 0;
+  double p99_relative = 0;
+  std::size_t points = 0;
+};
+RglAccuracy MeasureRglAccuracy(const RglBsdf& file, const BrdfFunction& f, double theta_max_deg = 80,
+                               double step_deg = 10, double threshold = 0.01);
+
+}  // namespace brdfkit::formats
