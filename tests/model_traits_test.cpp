@@ -144,8 +144,11 @@ TEST(ModelTraits, DeclaredChannelIndependenceHolds) {
       const Vec3<J> wo(J(std::sin(to) * std::cos(ph)), J(std::sin(to) * std::sin(ph)), J(std::cos(to)));
       const Rgb<J> f = b->Eval(pj.data(), wi, wo);
       for (int c = 0; c < 3; ++c)
-        for (std::size_t j = 0; j < channel.size(); ++j)
-          if (channel[j] >= 0 && channel[j] != c) EXPECT_EQ(f[c].v[j], 0.0) << "channel " << c << " by slot " << j;
+        for (std::size_t j = 0; j < channel.size(); ++j) {
+          if (channel[j] >= 0 && channel[j] != c) {
+            EXPECT_EQ(f[c].v[j], 0.0) << "channel " << c << " by slot " << j;
+          }
+        }
     }
   }
 }
