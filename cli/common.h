@@ -50,5 +50,6 @@ void RegisterConvergence(CLI::App& app);  // cmd_convergence.cpp
 void RegisterCheck(CLI::App& app);   // cmd_check.cpp
 void RegisterAlbedo(CLI::App& app);  // cmd_albedo.cpp
 void RegisterStress(CLI::App& app);  // cmd_stress.cpp
+void RegisterView(CLI::App& app);    // cmd_view.cpp
 
 }  // namespace brdfkit::cli

@@ -17,6 +17,7 @@ int main(int argc, char** argv) {
   brdfkit::cli::RegisterCheck(app);
   brdfkit::cli::RegisterAlbedo(app);
   brdfkit::cli::RegisterStress(app);
+  brdfkit::cli::RegisterView(app);
   if (argc > 1 && argv[1][0] != '-') {
     bool known = false;
     std::string names;
