@@ -104,8 +104,8 @@ void WriteTracePlot(const std::string& path, const fit::Result& r) {
     if (!(t.seconds > 0 && t.rmse > 0)) continue;  // log axes
     if (t.start != last_start) {
       const bool first_start = t.start > 0 && last_start < 0;
-      std::string label = t.start == 0 ? "final solve, all samples"
-                          : first_start ? "multi-start solves (" + std::to_string(r.starts) + ", sample subset)"
+      std::string label = t.start == 0 ? "final, all samples"
+                          : first_start ? std::to_string(r.starts) + " starts, subset"
                                         : "";
       series.push_back({label, {}, {}});
       series.back().colour = t.start == 0 ? 0 : validate::kGrey;

@@ -179,7 +179,7 @@ std::string ExplorerSection(const std::vector<ExplorerMaterial>& materials) {
 std::string ExplorerPage(const std::string& title, const std::vector<ExplorerMaterial>& materials) {
   return "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>" + HtmlEscape(title) +
          "</title>\n<style>body{font-family:sans-serif;max-width:1100px;margin:1em auto;padding:0 1em;color:#222}"
-         "</style></head>\n<body>\n<h1>" + HtmlEscape(title) + "</h1>\n" + ExplorerSection(materials) +
+         "h1{overflow-wrap:anywhere}</style></head>\n<body>\n<h1>" + HtmlEscape(title) + "</h1>\n" + ExplorerSection(materials) +
          "</body></html>\n";
 }
 

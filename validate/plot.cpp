@@ -54,7 +54,7 @@ void Legend(const std::vector<Series>& series, const std::vector<PLINT>& slots, 
   }
   if (texts.empty()) return;
   PLFLT lw, lh;
-  pllegend(&lw, &lh, 0, PL_POSITION_TOP | PL_POSITION_RIGHT | PL_POSITION_OUTSIDE, 0.015, 0.0, 0.06, 0, 15, 1, 0, 0,
+  pllegend(&lw, &lh, 0, PL_POSITION_RIGHT | PL_POSITION_OUTSIDE, 0.015, 0.0, 0.06, 0, 15, 1, 0, 0,
            PLINT(texts.size()), opts.data(), 0.6, 0.75, 1.8, 0.0, text_colours.data(), texts.data(), nullptr, nullptr,
            nullptr, nullptr, colours.data(), styles.data(), widths.data(), symbol_colours.data(), symbol_scales.data(),
            symbol_numbers.data(), symbols.data());
@@ -314,8 +314,8 @@ void PolarPlot(const std::string& svg_path, const std::string& title, const std:
   plcol0(15);
   plschr(0, 0.8);
   pladv(0);
-  plvpas(0.02, 0.7, 0.04, 0.92, 1.22 / 2);  // equal scales, no box: the grid is drawn below
-  plwind(-rmax, rmax, -0.12 * rmax, 1.1 * rmax);
+  plvpas(0.02, 0.7, 0.04, 0.92, 1.3 / 2);  // equal scales, no box: the grid is drawn below
+  plwind(-rmax, rmax, -0.2 * rmax, 1.1 * rmax);
   pllab("", "", title.c_str());
   // Grid: rings (decades on a log radius, quarters otherwise), spokes every 15 degrees.
   pllsty(2);
