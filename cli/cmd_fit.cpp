@@ -85,16 +85,16 @@ nlohmann::json ResultJson(const fit::Result& r, const fit::Options& o) {
   j["dropped_angle"] = r.dropped_angle;
   nlohmann::json trace = nlohmann::json::array();
   for (const fit::TracePoint& t : r.trace)
-    trace.push_back({{"iteration", t.iteration}, {"seconds", t.seconds}, {"cost", t.cost}, {"rmse", t.rmse}});
+    trace.push_back({{"iteration", t.iteration}, {"seconds", t.seconds}, {"cost", t.cost}, {"rmse", t.rmse}, {"start", t.start}});
   j["trace"] = trace;
   return j;
 }
 
 std::string TraceCsv(const fit::Result& r) {
-  std::string s = "iteration,seconds,cost,rmse\n";
-  char buf[128];
+  std::string s = "iteration,seconds,cost,rmse,start\n";
+  char buf[160];
   for (const fit::TracePoint& t : r.trace) {
-    std::snprintf(buf, sizeof buf, "%d,%.9g,%.17g,%.17g\n", t.iteration, t.seconds, t.cost, t.rmse);
+    std::snprintf(buf, sizeof buf, "%d,%.9g,%.17g,%.17g,%d\n", t.iteration, t.seconds, t.cost, t.rmse, t.start);
     s += buf;
   }
   return s;
@@ -115,16 +115,27 @@ void ParseLoss(const std::string& text, fit::Options& o) {
   }
 }
 
-// Metric RMSE against seconds (initialisation included), log-log.
+// Metric RMSE against seconds (initialisation included), log-log: each
+// multi-start solve (on its subset) in grey, the final solve in colour.
 void WriteTracePlot(const std::string& path, const fit::Result& r) {
-  validate::Series s{fit::MetricName(r.metric) + " rmse", {}, {}};
-  for (const fit::TracePoint& t : r.trace)
-    if (t.seconds > 0 && t.rmse > 0) {  // log axes
-      s.x.push_back(t.seconds);
-      s.y.push_back(t.rmse);
+  std::vector<validate::Series> series;
+  int last_start = -1;
+  for (const fit::TracePoint& t : r.trace) {
+    if (!(t.seconds > 0 && t.rmse > 0)) continue;  // log axes
+    if (t.start != last_start) {
+      const bool first_start = t.start > 0 && last_start < 0;
+      std::string label = t.start == 0 ? "final, all samples"
+                          : first_start ? std::to_string(r.starts) + " starts, subset"
+                                        : "";
+      series.push_back({label, {}, {}});
+      series.back().colour = t.start == 0 ? 0 : validate::kGrey;
+      last_start = t.start;
     }
-  validate::LinePlot(path, "fit " + r.model.Spec() + ": error against run time", "seconds",
-                     fit::MetricName(r.metric) + " rmse", {s}, true, true);
+    series.back().x.push_back(t.seconds);
+    series.back().y.push_back(t.rmse);
+  }
+  validate::LinePlot(path, "fit " + r.model.Spec() + ": error against run time", "run time [s]",
+                     fit::MetricName(r.metric) + " RMSE", series, true, true);
 }
 
 }  // namespace

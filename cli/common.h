@@ -61,5 +61,6 @@ void RegisterCheck(CLI::App& app);   // cmd_check.cpp
 void RegisterAlbedo(CLI::App& app);  // cmd_albedo.cpp
 void RegisterStress(CLI::App& app);  // cmd_stress.cpp
 void RegisterConvert(CLI::App& app);  // cmd_convert.cpp
+void RegisterView(CLI::App& app);    // cmd_view.cpp
 
 }  // namespace brdfkit::cli

@@ -18,6 +18,7 @@ int main(int argc, char** argv) {
   brdfkit::cli::RegisterAlbedo(app);
   brdfkit::cli::RegisterStress(app);
   brdfkit::cli::RegisterConvert(app);
+  brdfkit::cli::RegisterView(app);
   if (argc > 1 && argv[1][0] != '-') {
     bool known = false;
     std::string names;

@@ -2,7 +2,8 @@
 // figures embedded as SVG data URIs, and the wall time of every task. A
 // script counts the figures that decoded and rendered and writes the count
 // into <body data-figures-rendered="N/M">, which the tests read back from a
-// headless browser.
+// headless browser. Below the tasks, the explorer shows the measured
+// materials and their fits.
 #include <cmath>
 #include <cstdio>
 #include <ctime>
@@ -11,6 +12,7 @@
 #include <sstream>
 
 #include "brdf/atomic_file.h"
+#include "cli/explorer.h"
 #include "cli/run.h"
 
 namespace brdfkit::cli {
@@ -20,46 +22,7 @@ namespace {
 namespace fs = std::filesystem;
 using json = nlohmann::json;
 
-std::string Esc(const std::string& s) {
-  std::string out;
-  for (char c : s) {
-    switch (c) {
-      case '&': out += "&amp;"; break;
-      case '<': out += "&lt;"; break;
-      case '>': out += "&gt;"; break;
-      case '"': out += "&quot;"; break;
-      default: out += c;
-    }
-  }
-  return out;
-}
-
-std::string Base64(const std::string& in) {
-  static const char* k = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-  std::string out;
-  out.reserve((in.size() + 2) / 3 * 4);
-  std::size_t i = 0;
-  for (; i + 2 < in.size(); i += 3) {
-    const unsigned v = (unsigned char)in[i] << 16 | (unsigned char)in[i + 1] << 8 | (unsigned char)in[i + 2];
-    out += k[v >> 18];
-    out += k[(v >> 12) & 63];
-    out += k[(v >> 6) & 63];
-    out += k[v & 63];
-  }
-  if (i + 1 == in.size()) {
-    const unsigned v = (unsigned char)in[i] << 16;
-    out += k[v >> 18];
-    out += k[(v >> 12) & 63];
-    out += "==";
-  } else if (i + 2 == in.size()) {
-    const unsigned v = (unsigned char)in[i] << 16 | (unsigned char)in[i + 1] << 8;
-    out += k[v >> 18];
-    out += k[(v >> 12) & 63];
-    out += k[(v >> 6) & 63];
-    out += '=';
-  }
-  return out;
-}
+std::string Esc(const std::string& s) { return HtmlEscape(s); }
 
 std::string Num(const json& v, const char* fmt = "%.6g") {
   if (!v.is_number()) return "&ndash;";
@@ -72,6 +35,20 @@ std::string Seconds(double s) {
   char buf[32];
   std::snprintf(buf, sizeof buf, s < 10 ? "%.2f s" : "%.1f s", s);
   return buf;
+}
+
+// "name=value,..." (colour values r:g:b) as a small two-column table.
+std::string ParamsTable(const std::string& text) {
+  std::string rows;
+  std::stringstream in(text);
+  std::string item;
+  while (std::getline(in, item, ',')) {
+    const auto eq = item.find('=');
+    std::string value = eq == std::string::npos ? "" : item.substr(eq + 1);
+    for (char& c : value) c = c == ':' ? ' ' : c;
+    rows += "<tr><td><code>" + Esc(item.substr(0, eq)) + "</code></td><td>" + Esc(value) + "</td></tr>";
+  }
+  return rows.empty() ? "" : "<table class=\"params\">" + rows + "</table>";
 }
 
 // Markdown pipe tables (the convergence summary) as HTML.
@@ -121,13 +98,14 @@ std::string CheckHtml(const json& r) {
     for (const json& s : m.at("reasons")) reasons += "<li>" + Esc(s.get<std::string>()) + "</li>";
     for (const json& s : m.value("inconclusive", json::array()))
       reasons += "<li>inconclusive: " + Esc(s.get<std::string>()) + "</li>";
-    h += "<tr><td><b>" + Esc(m.at("material").get<std::string>()) + "</b><br><small>" +
-         Esc(m.value("description", "")) + "</small></td><td class=\"" + css + "\">" + verdict + "</td><td>" + Num(m.at("reciprocity_max_rel_error"), "%.3g") +
+    h += "<tr><td><b>" + Esc(m.at("material").get<std::string>()) + "</b><br><small><code>" +
+         Esc(m.value("model", "")) + "</code></small>" + ParamsTable(m.value("params", "")) + "</td><td class=\"" +
+         css + "\">" + verdict + "</td><td>" + Num(m.at("reciprocity_max_rel_error"), "%.3g") +
          "</td><td>" + Num(m.at("albedo_max"), "%.6f") + " (" + Num(m.at("albedo_max_at_mu"), "%.3g") + ")</td><td>" +
          Num(m.at("min_value"), "%.3g") + "</td><td>" + std::to_string(m.at("nonfinite_count").get<long long>()) +
          "</td><td>" + Num(m.at("chi2_p_value"), "%.3g") + "</td><td><ul>" + reasons + "</ul></td></tr>";
   }
-  return h + "</table>";
+  return "<div class=\"wide\">" + h + "</table></div>";
 }
 
 std::string FitHtml(const json& r) {
@@ -209,9 +187,10 @@ void WriteReport(const std::string& path, const Scene& scene, const std::vector<
   std::string h;
   h += "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>brdfkit report: " +
        Esc(scene.title.empty() ? scene.origin : scene.title) + "</title>\n<style>\n"
-       "body{font-family:sans-serif;max-width:1000px;margin:2em auto;padding:0 1em;color:#222}\n"
+       "body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}\n"
        "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:4px 8px;text-align:left;"
-       "vertical-align:top}th{background:#f3f3f3}td ul{min-width:18em}\n.ok{color:#1a7f37;font-weight:bold}.bad{color:#c62828;"
+       "vertical-align:top;overflow-wrap:anywhere}th{background:#f3f3f3}td ul{min-width:14em}\n"
+       "div.wide{overflow-x:auto}table.params{margin:4px 0 0;font-size:85%}table.params td{padding:1px 5px}\n.ok{color:#1a7f37;font-weight:bold}.bad{color:#c62828;"
        "font-weight:bold}.undecided{color:#9a6700;font-weight:bold}\nfigure{margin:1em 0}img.plot{max-width:100%;border:1px solid #ddd}figcaption{font-size:"
        "90%;color:#444}\nul{margin:0;padding-left:1.2em}code{background:#f3f3f3;padding:0 3px}\n</style></head>\n"
        "<body data-figures-rendered=\"pending\">\n";
@@ -243,6 +222,20 @@ void WriteReport(const std::string& path, const Scene& scene, const std::vector<
     for (const std::string& f : o.files) files += (files.empty() ? "" : ", ") + ("<a href=\"" + Esc(f) + "\">" + Esc(f) + "</a>");
     h += "<p><small>Files: " + files + "</small></p>\n";
   }
+  std::vector<ExplorerMaterial> explore;
+  for (const auto& [name, m] : scene.materials) {
+    bool shown = m.kind == MaterialSpec::Kind::kFit;
+    for (const TaskOutcome& o : outcomes)
+      if (o.type == "synth" && o.result.value("material", "") == name) shown = true;
+    if (!shown || m.kind == MaterialSpec::Kind::kTable) continue;
+    if (m.kind == MaterialSpec::Kind::kFit && !fs::exists(fs::path(out_dir) / m.fit_task / "fit.json")) continue;
+    LoadedModel lm = MaterialModel(m, RunContext{scene, out_dir, true});
+    explore.push_back({name, lm.model.Spec() + " (" + FormatParams(lm.model.Info(), lm.params) + ")", lm});
+  }
+  if (!explore.empty())
+    h += "<h2 id=\"explorer\">Explorer: the measured materials and their fits</h2>\n"
+         "<p>Values computed by brdfkit on fixed angle grids (see <code>brdfkit view</code>); move the sliders, "
+         "hover for values.</p>\n" + ExplorerSection(explore);
   h += "<script>\n"
        "window.addEventListener('load', function () {\n"
        "  var imgs = document.querySelectorAll('img.plot'), ok = 0;\n"

@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "cli/common.h"
 #include "cli/scene.h"
 
 namespace brdfkit::cli {
@@ -51,6 +52,10 @@ struct RunContext {
 // Runs one task into <out_dir>/<task name>/; the tasks it depends on have run
 // (or are cached) already.
 TaskOutcome RunTask(const TaskSpec& task, const RunContext& ctx);
+
+// A material as a model and parameters (fitted ones read from their fit's
+// result); throws for a data table.
+LoadedModel MaterialModel(const MaterialSpec& m, const RunContext& ctx);
 
 // report.html: one self-contained file (figures embedded as data URIs).
 void WriteReport(const std::string& path, const Scene& scene, const std::vector<TaskOutcome>& outcomes,

@@ -23,16 +23,9 @@
 
 namespace brdfkit::cli {
 
-namespace {
-
-namespace fs = std::filesystem;
-using json = nlohmann::json;
-
-constexpr double kDegree = kPi / 180;
-
-
 // A material as a model and parameters (fitted ones from their fit's file).
 LoadedModel MaterialModel(const MaterialSpec& m, const RunContext& ctx) {
+  namespace fs = std::filesystem;
   switch (m.kind) {
     case MaterialSpec::Kind::kAnalytic: {
       LoadedModel out{Model::Parse(m.model), m.params};
@@ -50,6 +43,13 @@ LoadedModel MaterialModel(const MaterialSpec& m, const RunContext& ctx) {
   }
   throw std::runtime_error("material '" + m.name + "' is a data table, not a BRDF");
 }
+
+namespace {
+
+namespace fs = std::filesystem;
+using json = nlohmann::json;
+
+constexpr double kDegree = kPi / 180;
 
 std::string Describe(const MaterialSpec& m, const LoadedModel& lm) {
   switch (m.kind) {
@@ -73,16 +73,9 @@ struct TaskDir {
 
 // log10 of f (one channel) at phi_d = 90 degrees over the MERL theta_h x
 // theta_d bin centres: the usual image of an isotropic BRDF.
-void HalfDiffImage(const std::string& path, const std::string& title,
-                   const std::function<double(const Eigen::Vector3d&, const Eigen::Vector3d&)>& f) {
+std::vector<double> HalfDiffLog10(const std::function<double(const Eigen::Vector3d&, const Eigen::Vector3d&)>& f) {
   constexpr int kN = 90;
-  std::vector<double> xs(kN), ys(kN), v(kN * kN);
-  for (int i = 0; i < kN; ++i) {
-    double th, td, pd;
-    MerlTable::BinCentre(i, i, 90, th, td, pd);
-    xs[i] = th / kDegree;
-    ys[i] = td / kDegree;
-  }
+  std::vector<double> v(kN * kN);
   for (int j = 0; j < kN; ++j)
     for (int i = 0; i < kN; ++i) {
       Eigen::Vector3d wi, wo;
@@ -90,7 +83,30 @@ void HalfDiffImage(const std::string& path, const std::string& title,
       const double x = (wi.z() > 0 && wo.z() > 0) ? f(wi, wo) : NAN;
       v[j * kN + i] = x > 0 ? std::log10(x) : NAN;
     }
-  validate::HeatMap(path, title, "theta_h [deg]", "theta_d [deg]", xs, ys, v);
+  return v;
+}
+
+std::vector<double> HalfDiffNodes(bool theta_d) {
+  std::vector<double> nodes(90);
+  for (int i = 0; i < 90; ++i) {
+    double th, td, pd;
+    MerlTable::BinCentre(i, i, 90, th, td, pd);
+    nodes[i] = (theta_d ? td : th) / kDegree;
+  }
+  return nodes;
+}
+
+void HalfDiffImage(const std::string& path, const std::string& title, const std::vector<double>& log10_f,
+                   validate::ColourScale scale = {}) {
+  scale.log10_values = true;
+  if (scale.label.empty()) scale.label = "f_r [1/sr]";
+  validate::HeatMap(path, title, "theta_h [deg]", "theta_d [deg]", HalfDiffNodes(false), HalfDiffNodes(true), log10_f,
+                    scale);
+}
+
+void HalfDiffImage(const std::string& path, const std::string& title,
+                   const std::function<double(const Eigen::Vector3d&, const Eigen::Vector3d&)>& f) {
+  HalfDiffImage(path, title, HalfDiffLog10(f));
 }
 
 // ------------------------------------------------------------------ check
@@ -169,7 +185,7 @@ TaskOutcome RunAlbedo(const TaskSpec& t, const RunContext& ctx) {
   std::string slice;
   if (table.params.size() > 1) slice = " at " + table.params[1].name + " = " + FormatDouble(table.params[1].nodes[0]);
   validate::HeatMap(dir.Abs("E.svg"), "E(mu, " + a1.name + ") of " + table.model + slice, "mu = cos theta_o", a1.name,
-                    table.mu.nodes, a1.nodes, e);
+                    table.mu.nodes, a1.nodes, e, {"directional albedo E", 0.0, NAN, false});
   std::vector<validate::Series> avg;
   for (std::size_t i2 = 0; i2 < std::min<std::size_t>(table.n2(), 8); ++i2) {
     validate::Series s{table.params.size() > 1 ? table.params[1].name + " = " + FormatDouble(table.params[1].nodes[i2])
@@ -180,7 +196,7 @@ TaskOutcome RunAlbedo(const TaskSpec& t, const RunContext& ctx) {
   }
   validate::LinePlot(dir.Abs("E_avg.svg"), "average albedo E_avg of " + table.model, a1.name, "E_avg", avg, false, false);
   o.figures.push_back({"Directional albedo of " + table.model, dir.Rel("E.svg"),
-                       "E(mu, " + a1.name + ")" + slice + "; largest error estimate " + FormatDouble(table.max_error) + "."});
+                       "E(mu, " + a1.name + ")" + slice + "; colour scale from 0; largest error estimate " + FormatDouble(table.max_error) + "."});
   o.figures.push_back({"Average albedo of " + table.model, dir.Rel("E_avg.svg"),
                        "E_avg = 2 int E(mu) mu dmu; the Kulla-Conty lobe's normalisation is 1 / (pi (1 - E_avg))."});
   json axes = json::array();
@@ -258,7 +274,8 @@ TaskOutcome RunSynth(const TaskSpec& t, const RunContext& ctx) {
     for (int y = 0; y < h; ++y) ys[y] = y;
     for (int y = 0; y < h; ++y)
       for (int x = 0; x < w; ++x) v[std::size_t(h - 1 - y) * w + x] = cap.raw[0][std::size_t(w) * h + std::size_t(y) * w + x];
-    validate::HeatMap(dir.Abs("raw.svg"), "raw image, green channel, exposure 1", "x [pixel]", "y [pixel]", xs, ys, v);
+    validate::HeatMap(dir.Abs("raw.svg"), "raw image, green channel, exposure 1", "x [pixel]", "y [pixel]", xs, ys, v,
+                      {"sensor value [DN]", NAN, NAN, false});
     o.figures.push_back({"Camera image of " + m.name, dir.Rel("raw.svg"),
                          "Raw sensor values before reduction (cos^4 falloff and noise included)."});
     o.result = {{"material", m.name}, {"description", Describe(m, lm)}, {"instrument", t.instrument}, {"camera", true},
@@ -299,9 +316,10 @@ TaskOutcome RunSynth(const TaskSpec& t, const RunContext& ctx) {
     for (const Slice& s : slices)
       series.push_back({"theta_i = " + FormatDouble(std::round(s.theta_i / kDegree * 10) / 10) + " deg", s.angle, s.f});
     validate::PolarPlot(dir.Abs("slices.svg"), "measured f_r (green), plane of incidence", "f_r [1/sr]", series,
-                        std::vector<bool>(series.size(), true), {}, true, 0);
+                        std::vector<bool>(series.size(), true), {}, true, 3);
     o.figures.push_back({"Synthetic measurement of " + m.name, dir.Rel("slices.svg"),
-                         "In-plane samples; light from positive angles, the specular direction at negative angles."});
+                         "In-plane samples; light from positive angles, the specular direction at negative angles. Log radius over "
+                         "three decades below the peak; smaller values sit at the centre."});
   }
   if (inst.plan.kind == synth::SamplingPlan::Kind::kMerl) {
     const auto b = lm.model.Make<double>();
@@ -365,8 +383,9 @@ TaskOutcome RunFit(const TaskSpec& t, const RunContext& ctx) {
     WriteFitTracePlot(dir.Abs("trace.svg"), r);
     o.files.push_back(dir.Rel("trace.svg"));
     o.figures.push_back({"Fit " + t.name + ": error against run time", dir.Rel("trace.svg"),
-                         "Metric RMSE after each iteration of the final solve, against seconds since the start "
-                         "(initialisation included)."});
+                         "Metric RMSE after each accepted iteration against seconds since the start: the "
+                         "multi-start solves (grey, each on a subset of the samples), then the final solve from the "
+                         "best start on all samples."});
   } catch (const std::invalid_argument&) {
     // A fit that converged at its starting point has no positive trace to draw.
   }
@@ -395,10 +414,11 @@ TaskOutcome RunFit(const TaskSpec& t, const RunContext& ctx) {
       markers.push_back(false);
     }
     validate::PolarPlot(dir.Abs("slices.svg"), "measured and fitted f_r (green), plane of incidence", "f_r [1/sr]",
-                        series, markers, colours, true, 0);
+                        series, markers, colours, true, 3);
     o.files.push_back(dir.Rel("slices.svg"));
     o.figures.push_back({"Fit " + t.name + ": measured against fitted", dir.Rel("slices.svg"),
-                         "Points: data; lines: the fitted " + r.model.Spec() + ". Light from positive angles."});
+                         "Points: data; lines: the fitted " + r.model.Spec() + ", one colour per theta_i. Light from positive angles; "
+                         "log radius over three decades below the peak."});
   }
   // Residuals against the half-vector angle: RMS relative residual per bin.
   {
@@ -438,11 +458,61 @@ TaskOutcome RunFit(const TaskSpec& t, const RunContext& ctx) {
                            "directions (without the instrument's apertures)."});
     }
   }
-  HalfDiffImage(dir.Abs("halfdiff.svg"), "log10 f_r (green) of the fitted " + r.model.Spec() + ", phi_d = 90 deg",
-                [&](const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) { return fitted->Eval(r.params.data(), wi, wo)[1]; });
-  o.files.push_back(dir.Rel("halfdiff.svg"));
-  o.figures.push_back({"Fit " + t.name + ": theta_h x theta_d slice", dir.Rel("halfdiff.svg"),
-                       "The fitted model over the MERL half/difference angles."});
+  // theta_h x theta_d images at phi_d = 90 deg (the plane of incidence) on
+  // 3-degree cells: the samples within 15 degrees of that phi_d, the fitted
+  // model at the cell centres, and fitted / measured at the samples.
+  {
+    constexpr int kCells = 30;
+    constexpr double kWidth = 90.0 / kCells;
+    std::vector<double> nodes(kCells), meas(kCells * kCells, 0.0), fit_at(kCells * kCells, 0.0),
+        count(kCells * kCells, 0.0), fitted_log(kCells * kCells, NAN);
+    for (int i = 0; i < kCells; ++i) nodes[i] = (i + 0.5) * kWidth;
+    for (const fit::Sample& s : ds.samples) {
+      double th, td, pd;
+      MerlTable::DirectionsToHalfDiff(s.wi, s.wo, th, td, pd);
+      if (std::abs(pd - 90 * kDegree) > 15 * kDegree || !(s.f[1] > 0)) continue;
+      const int ih = std::min(kCells - 1, int(th / kDegree / kWidth)), id = std::min(kCells - 1, int(td / kDegree / kWidth));
+      meas[id * kCells + ih] += s.f[1];
+      fit_at[id * kCells + ih] += fitted->Eval(r.params.data(), s.wi, s.wo)[1];
+      count[id * kCells + ih] += 1;
+    }
+    std::vector<double> log_meas(meas.size(), NAN), log_ratio(meas.size(), NAN);
+    double lo = INFINITY, hi = -INFINITY;
+    for (std::size_t k = 0; k < meas.size(); ++k) {
+      if (count[k] > 0) {
+        log_meas[k] = std::log10(meas[k] / count[k]);
+        if (fit_at[k] > 0) log_ratio[k] = std::log10(fit_at[k] / meas[k]);
+        lo = std::min(lo, log_meas[k]);
+        hi = std::max(hi, log_meas[k]);
+      }
+      Eigen::Vector3d wi, wo;
+      MerlTable::HalfDiffToDirections(nodes[k % kCells] * kDegree, nodes[k / kCells] * kDegree, 90 * kDegree, wi, wo);
+      const double f = (wi.z() > 0 && wo.z() > 0) ? fitted->Eval(r.params.data(), wi, wo)[1] : NAN;
+      fitted_log[k] = f > 0 ? std::log10(f) : NAN;
+    }
+    const std::string spec = r.model.Spec();
+    // The fitted image shares the measured colour range, so equal colours are equal values.
+    const validate::ColourScale measured_scale{"f_r [1/sr]", lo, hi, true};
+    if (hi >= lo) {
+      validate::HeatMap(dir.Abs("halfdiff_measured.svg"), "measured f_r (green), phi_d = 90 deg", "theta_h [deg]",
+                        "theta_d [deg]", nodes, nodes, log_meas, measured_scale);
+      o.figures.push_back({"Fit " + t.name + ": measured theta_h x theta_d image", dir.Rel("halfdiff_measured.svg"),
+                           "Mean measured f_r per 3-degree cell (samples within 15 degrees of phi_d = 90 deg); grey "
+                           "cells hold no sample."});
+    }
+    validate::HeatMap(dir.Abs("halfdiff.svg"), "fitted " + spec + " f_r (green), phi_d = 90 deg", "theta_h [deg]",
+                      "theta_d [deg]", nodes, nodes, fitted_log, hi >= lo ? measured_scale : validate::ColourScale{"f_r [1/sr]", NAN, NAN, true});
+    o.figures.push_back({"Fit " + t.name + ": fitted theta_h x theta_d image", dir.Rel("halfdiff.svg"),
+                         "The fitted model at the cell centres, on the measured image's colour scale (values beyond it "
+                         "saturate at the end colours); grey: below the horizon."});
+    if (hi >= lo) {
+      validate::HeatMap(dir.Abs("halfdiff_ratio.svg"), "fitted / measured (green), phi_d = 90 deg", "theta_h [deg]",
+                        "theta_d [deg]", nodes, nodes, log_ratio, {"fitted / measured", -std::log10(2.0), std::log10(2.0), true});
+      o.figures.push_back({"Fit " + t.name + ": fitted / measured", dir.Rel("halfdiff_ratio.svg"),
+                           "Ratio of the fitted model to the data per cell, on a log scale from 1/2 to 2 (beyond it "
+                           "saturated); grey cells hold no sample."});
+    }
+  }
   o.result = j;
   o.result.erase("trace");
   o.result["data_missing"] = ds.missing;

@@ -954,6 +954,15 @@ Result Fit(const Model& model, const Dataset& data, const Options& o) {
       BuildProblem(problem, plain, subset, chunk, info, u);
       ceres::Solver::Options so = SolverOptions(o, LinearSolver::kDenseQr, o.start_iterations);
       so.function_tolerance = 1e-8;
+      so.update_state_every_iteration = sigma;  // the RMSE below reads u
+      const int start = res.starts + 1;
+      TraceCallback callback([&](const ceres::IterationSummary& s) {
+        if (s.iteration > 0 && !s.step_is_successful) return;
+        // Without sigma the plain engine's cost is the metric's sum of squares / 2.
+        const double rmse = sigma ? Rmse(plain, subset, u, o.num_threads) : std::sqrt(2 * s.cost / (3.0 * subset.size()));
+        res.trace.push_back({s.iteration, elapsed(), s.cost, rmse, start});
+      });
+      so.callbacks.push_back(&callback);
       ceres::Solver::Summary summary;
       ceres::Solve(so, &problem, &summary);
       ++res.starts;

@@ -141,11 +141,15 @@ struct Options {
   std::function<void(int iteration, double seconds, double cost)> progress;
 };
 
+// One accepted iteration. The multi-start solves (start = 1, 2, ...) run on
+// their subset of the samples and report its RMSE; start = 0 is the final
+// solve on all samples.
 struct TracePoint {
   int iteration = 0;
   double seconds = 0;  // since the start of Fit (initialisation included)
   double cost = 0;
   double rmse = 0;     // root mean square of the metric's residuals
+  int start = 0;
 };
 
 // Relative error of a fitted model against the data it was fitted to:

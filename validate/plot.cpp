@@ -21,9 +21,44 @@ std::mutex& PlplotMutex() {
   return m;
 }
 
-// Series colours (cmap0 slots 1..8), readable on white.
-constexpr int kPalette[8][3] = {{31, 119, 180}, {214, 39, 40},  {44, 160, 44},  {148, 103, 189},
-                                {255, 127, 14}, {140, 86, 75},  {227, 119, 194}, {23, 190, 207}};
+// Series colours (cmap0 slots 1..8), readable on white; slot 9 is the grey
+// of secondary series and of missing heat-map cells.
+constexpr int kPalette[9][3] = {{31, 119, 180}, {214, 39, 40},  {44, 160, 44},  {148, 103, 189},
+                                {255, 127, 14}, {140, 86, 75},  {227, 119, 194}, {23, 190, 207},
+                                {185, 185, 185}};
+
+PLINT Slot(int colour, std::size_t position) {
+  if (colour == kGrey) return 9;
+  return PLINT((colour >= 0 ? std::size_t(colour) : position) % 8) + 1;
+}
+
+// Legend to the right of the plot area, outside it, so it never covers data.
+// Series with an empty label are left out.
+void Legend(const std::vector<Series>& series, const std::vector<PLINT>& slots, const std::vector<bool>& markers) {
+  std::vector<PLINT> opts, colours, styles, symbol_colours, symbol_numbers, text_colours;
+  std::vector<PLFLT> widths, symbol_scales;
+  std::vector<const char*> texts, symbols;
+  for (std::size_t s = 0; s < series.size(); ++s) {
+    if (series[s].label.empty()) continue;
+    const bool marker = !markers.empty() && markers[s];
+    opts.push_back(marker ? PL_LEGEND_SYMBOL : PL_LEGEND_LINE);
+    colours.push_back(slots[s]);
+    styles.push_back(1);
+    widths.push_back(2.0);
+    symbol_colours.push_back(slots[s]);
+    symbol_scales.push_back(1.0);
+    symbol_numbers.push_back(1);
+    symbols.push_back("#(228)");
+    texts.push_back(series[s].label.c_str());
+    text_colours.push_back(15);
+  }
+  if (texts.empty()) return;
+  PLFLT lw, lh;
+  pllegend(&lw, &lh, 0, PL_POSITION_RIGHT | PL_POSITION_OUTSIDE, 0.015, 0.0, 0.06, 0, 15, 1, 0, 0,
+           PLINT(texts.size()), opts.data(), 0.6, 0.75, 1.8, 0.0, text_colours.data(), texts.data(), nullptr, nullptr,
+           nullptr, nullptr, colours.data(), styles.data(), widths.data(), symbol_colours.data(), symbol_scales.data(),
+           symbol_numbers.data(), symbols.data());
+}
 
 // Owns the temporary output file and one PLplot stream; PLplot aborts the
 // process when it cannot open its output, so the file is created (and the
@@ -45,7 +80,7 @@ class SvgStream {
     plspage(0, 0, 900, 640, 0, 0);
     plscol0(0, 255, 255, 255);  // background
     plscol0(15, 0, 0, 0);       // axes and text
-    for (int i = 0; i < 8; ++i) plscol0(i + 1, kPalette[i][0], kPalette[i][1], kPalette[i][2]);
+    for (int i = 0; i < 9; ++i) plscol0(i + 1, kPalette[i][0], kPalette[i][1], kPalette[i][2]);
     plinit();
     open_ = true;
   }
@@ -74,13 +109,19 @@ class SvgStream {
   bool open_ = false, committed_ = false;
 };
 
-// Range of finite values with a margin; log10 already applied.
-void Range(const std::vector<double>& v, double& lo, double& hi) {
+// Range of finite values with a margin; log10 already applied. A log axis
+// covers at least two powers of ten so that it carries two tick labels.
+void Range(const std::vector<double>& v, bool log_axis, double& lo, double& hi) {
   lo = std::numeric_limits<double>::infinity();
   hi = -lo;
   for (double x : v) {
     lo = std::min(lo, x);
     hi = std::max(hi, x);
+  }
+  if (log_axis && std::floor(hi) - std::ceil(lo) < 1) {
+    lo = std::floor(lo);
+    hi = std::max(std::ceil(hi), lo + 1);
+    return;
   }
   if (!(hi > lo)) {
     lo -= 0.5;
@@ -89,6 +130,16 @@ void Range(const std::vector<double>& v, double& lo, double& hi) {
   const double pad = 0.04 * (hi - lo);
   lo -= pad;
   hi += pad;
+}
+
+// Viridis (perceptually uniform, readable in grey) through five stops.
+void ViridisMap() {
+  PLFLT pos[5] = {0, 0.25, 0.5, 0.75, 1};
+  PLFLT r[5] = {68 / 255., 59 / 255., 33 / 255., 94 / 255., 253 / 255.};
+  PLFLT g[5] = {1 / 255., 82 / 255., 145 / 255., 201 / 255., 231 / 255.};
+  PLFLT b[5] = {84 / 255., 139 / 255., 140 / 255., 98 / 255., 37 / 255.};
+  plscmap1n(256);
+  plscmap1l(1, 5, pos, r, g, b, nullptr);
 }
 
 }  // namespace
@@ -116,51 +167,35 @@ void LinePlot(const std::string& svg_path, const std::string& title, const std::
   }
   if (all_x.empty()) throw std::invalid_argument("plot '" + svg_path + "': no finite points to draw");
   double x0, x1, y0, y1;
-  Range(all_x, x0, x1);
-  Range(all_y, y0, y1);
+  Range(all_x, log_x, x0, x1);
+  Range(all_y, log_y, y0, y1);
 
   std::lock_guard<std::mutex> lock(PlplotMutex());
   SvgStream out(svg_path);
   plcol0(15);
-  plschr(0, 0.8);
-  plenv(x0, x1, y0, y1, 0, (log_x ? 10 : 0) + (log_y ? 20 : 0) + 2);  // 2: grid lines
+  plschr(0, 0.85);
+  pladv(0);
+  plvpor(0.1, 0.68, 0.11, 0.91);
+  plwind(x0, x1, y0, y1);
+  plbox(log_x ? "bcnstgl" : "bcnstg", 0, 0, log_y ? "bcnstvgl" : "bcnstvg", 0, 0);
   pllab(xlabel.c_str(), ylabel.c_str(), title.c_str());
-  std::vector<PLINT> opts, colours, styles;
-  std::vector<PLFLT> widths;
-  std::vector<const char*> texts;
-  PLINT drawn = 0;
+  std::vector<PLINT> slots;
   for (std::size_t s = 0; s < series.size(); ++s) {
-    const PLINT colour = PLINT(s % 8) + 1;
-    const PLINT style = PLINT((s / 8) % 8) + 1;
+    const PLINT colour = Slot(series[s].colour, s);
+    slots.push_back(colour);
     plcol0(colour);
-    pllsty(style);
     plwidth(2.0);
     if (xs[s].size() > 1) plline(PLINT(xs[s].size()), xs[s].data(), ys[s].data());
     if (!xs[s].empty()) plpoin(PLINT(xs[s].size()), xs[s].data(), ys[s].data(), 17);
-    opts.push_back(PL_LEGEND_LINE);
-    colours.push_back(colour);
-    styles.push_back(style);
-    widths.push_back(2.0);
-    texts.push_back(series[s].label.c_str());
-    ++drawn;
   }
-  pllsty(1);
   plwidth(1.0);
-  if (drawn > 0) {
-    std::vector<PLINT> text_colours(std::size_t(drawn), 15);
-    PLFLT lw, lh;
-    plscol0a(0, 255, 255, 255, 0.85);
-    pllegend(&lw, &lh, PL_LEGEND_BACKGROUND | PL_LEGEND_BOUNDING_BOX, PL_POSITION_TOP | PL_POSITION_RIGHT | PL_POSITION_INSIDE,
-             0.02, 0.02, 0.08, 0, 15, 1, 0, 0, drawn, opts.data(), 1.0, 0.8, 2.0, 0.0, text_colours.data(),
-             texts.data(), nullptr, nullptr, nullptr, nullptr, colours.data(), styles.data(), widths.data(),
-             nullptr, nullptr, nullptr, nullptr);
-  }
+  Legend(series, slots, {});
   out.Commit();
 }
 
 void HeatMap(const std::string& svg_path, const std::string& title, const std::string& xlabel,
              const std::string& ylabel, const std::vector<double>& x_nodes, const std::vector<double>& y_nodes,
-             const std::vector<double>& values) {
+             const std::vector<double>& values, const ColourScale& scale) {
   const std::size_t nx = x_nodes.size(), ny = y_nodes.size();
   if (nx < 2 || ny < 2) throw std::invalid_argument("heat map '" + svg_path + "': needs at least 2 x 2 nodes");
   if (values.size() != nx * ny)
@@ -171,12 +206,18 @@ void HeatMap(const std::string& svg_path, const std::string& title, const std::s
   for (std::size_t i = 0; i + 1 < ny; ++i)
     if (!(y_nodes[i + 1] > y_nodes[i])) throw std::invalid_argument("heat map '" + svg_path + "': y nodes must increase");
   double zmin = std::numeric_limits<double>::infinity(), zmax = -zmin;
+  bool missing = false;
   for (double v : values) {
-    if (!std::isfinite(v)) continue;
+    if (!std::isfinite(v)) {
+      missing = true;
+      continue;
+    }
     zmin = std::min(zmin, v);
     zmax = std::max(zmax, v);
   }
   if (!(zmax >= zmin)) throw std::invalid_argument("heat map '" + svg_path + "': no finite values");
+  if (std::isfinite(scale.zmin)) zmin = scale.zmin;
+  if (std::isfinite(scale.zmax)) zmax = scale.zmax;
   if (!(zmax > zmin)) {
     zmin -= 0.5;
     zmax += 0.5;
@@ -185,15 +226,27 @@ void HeatMap(const std::string& svg_path, const std::string& title, const std::s
   std::lock_guard<std::mutex> lock(PlplotMutex());
   SvgStream out(svg_path);
   plcol0(15);
-  plschr(0, 0.8);
-  plenv(x_nodes.front(), x_nodes.back(), y_nodes.front(), y_nodes.back(), 0, 0);
+  plschr(0, 0.85);
+  pladv(0);
+  plvpor(0.1, 0.74, 0.11, 0.91);
+  plwind(x_nodes.front(), x_nodes.back(), y_nodes.front(), y_nodes.back());
+  // Missing cells show this grey: the shades below leave them unfilled.
+  plcol0(9);
+  PLFLT bx[4] = {x_nodes.front(), x_nodes.back(), x_nodes.back(), x_nodes.front()};
+  PLFLT by[4] = {y_nodes.front(), y_nodes.front(), y_nodes.back(), y_nodes.back()};
+  plfill(4, bx, by);
+  plcol0(15);
   pllab(xlabel.c_str(), ylabel.c_str(), title.c_str());
+  const int levels = 33;
+  const double span = zmax - zmin;
   PLFLT** z;
   plAlloc2dGrid(&z, PLINT(nx), PLINT(ny));
   for (std::size_t ix = 0; ix < nx; ++ix)
     for (std::size_t iy = 0; iy < ny; ++iy) {
       const double v = values[iy * nx + ix];
-      z[ix][iy] = std::isfinite(v) ? v : zmin;  // missing values drawn at the low end
+      // Saturate just inside the end levels (a value on a level edge may be
+      // left unfilled); missing values far below the lowest level.
+      z[ix][iy] = std::isfinite(v) ? std::clamp(v, zmin + 1e-6 * span, zmax - 1e-6 * span) : zmin - span;
     }
   std::vector<PLFLT> xg(x_nodes.begin(), x_nodes.end()), yg(y_nodes.begin(), y_nodes.end());
   PLcGrid grid;
@@ -202,25 +255,34 @@ void HeatMap(const std::string& svg_path, const std::string& title, const std::s
   grid.zg = nullptr;
   grid.nx = PLINT(nx);
   grid.ny = PLINT(ny);
-  const int levels = 33;
   std::vector<PLFLT> clevel(levels);
-  for (int i = 0; i < levels; ++i) clevel[i] = zmin + (zmax - zmin) * i / (levels - 1);
-  plspal1("cmap1_blue_yellow.pal", 1);
+  for (int i = 0; i < levels; ++i) clevel[i] = zmin + span * i / (levels - 1);
+  ViridisMap();
   plshades(const_cast<PLFLT_MATRIX>(z), PLINT(nx), PLINT(ny), nullptr, x_nodes.front(), x_nodes.back(),
            y_nodes.front(), y_nodes.back(), clevel.data(), levels, 1.0, 0, 0.0, plfill, 1, pltr1, &grid);
   plFree2dGrid(z, PLINT(nx), PLINT(ny));
   plcol0(15);
   plbox("bcnst", 0, 0, "bcnstv", 0, 0);
+  if (missing) plmtex("b", 3.2, 1.0, 1.0, "grey: no data");
   PLFLT cw, ch;
-  const char* axis_opts[] = {"bcvtm"};
-  PLINT label_opts[] = {PL_COLORBAR_LABEL_BOTTOM};
-  const char* labels[] = {""};
+  // log10 values: whole decades as 10^k when the range spans two, otherwise
+  // the ticks of the log10 axis labelled with the value itself.
+  const std::string axis = !scale.log10_values ? "bcvtm" : span >= 2 ? "bcvtml" : "bcvtmo";
+  plslabelfunc(
+      [](PLINT, PLFLT value, char* label, PLINT length, PLPointer) {
+        std::snprintf(label, std::size_t(length), "%.3g", std::pow(10.0, value));
+      },
+      nullptr);
+  const char* axis_opts[] = {axis.c_str()};
+  PLINT label_opts[] = {PL_COLORBAR_LABEL_RIGHT};
+  const char* labels[] = {scale.label.c_str()};
   PLINT n_values[] = {levels};
   const PLFLT* values_arr[] = {clevel.data()};
   PLFLT ticks[] = {0.0};
   PLINT sub_ticks[] = {0};
-  plcolorbar(&cw, &ch, PL_COLORBAR_SHADE | PL_COLORBAR_SHADE_LABEL, PL_POSITION_RIGHT, 0.03, 0.0, 0.04, 0.8, 0, 15, 1,
+  plcolorbar(&cw, &ch, PL_COLORBAR_SHADE, PL_POSITION_RIGHT | PL_POSITION_OUTSIDE, 0.02, 0.0, 0.035, 1.0, 0, 15, 1,
              0.0, 0.0, 0, 0.0, 1, label_opts, labels, 1, axis_opts, ticks, sub_ticks, n_values, values_arr);
+  plslabelfunc(nullptr, nullptr);
   out.Commit();
 }
 
@@ -251,7 +313,9 @@ void PolarPlot(const std::string& svg_path, const std::string& title, const std:
   SvgStream out(svg_path);
   plcol0(15);
   plschr(0, 0.8);
-  plenv(-rmax, rmax, -0.12 * rmax, 1.1 * rmax, 1, -2);  // equal scales, no box: the grid is drawn below
+  pladv(0);
+  plvpas(0.02, 0.7, 0.04, 0.92, 1.3 / 2);  // equal scales, no box: the grid is drawn below
+  plwind(-rmax, rmax, -0.2 * rmax, 1.1 * rmax);
   pllab("", "", title.c_str());
   // Grid: rings (decades on a log radius, quarters otherwise), spokes every 15 degrees.
   pllsty(2);
@@ -277,10 +341,7 @@ void PolarPlot(const std::string& svg_path, const std::string& title, const std:
   pllsty(1);
   plptex(0, -0.1 * rmax, 1, 0, 0.5,
          (radius_label + (log_radius ? ", log radius" : "") + "; angle from the normal in degrees").c_str());
-  std::vector<PLINT> opts, colours, styles, symbol_colours;
-  std::vector<PLFLT> widths, symbol_scales;
-  std::vector<const char*> texts, symbols;
-  std::vector<PLINT> symbol_numbers;
+  std::vector<PLINT> slots;
   for (std::size_t s = 0; s < series.size(); ++s) {
     std::vector<double> x, y;
     for (std::size_t i = 0; i < series[s].x.size(); ++i) {
@@ -290,7 +351,8 @@ void PolarPlot(const std::string& svg_path, const std::string& title, const std:
       x.push_back(r * std::sin(a));
       y.push_back(r * std::cos(a));
     }
-    const PLINT c = PLINT((colour.empty() ? int(s) : colour[s]) % 8) + 1;
+    const PLINT c = Slot(colour.empty() ? series[s].colour : colour[s], s);
+    slots.push_back(c);
     plcol0(c);
     plwidth(2.0);
     if (markers[s]) {
@@ -298,28 +360,16 @@ void PolarPlot(const std::string& svg_path, const std::string& title, const std:
     } else if (x.size() > 1) {
       plline(PLINT(x.size()), x.data(), y.data());
     }
-    opts.push_back(markers[s] ? PL_LEGEND_SYMBOL : PL_LEGEND_LINE);
-    colours.push_back(c);
-    styles.push_back(1);
-    widths.push_back(2.0);
-    symbol_colours.push_back(c);
-    symbol_scales.push_back(1.0);
-    symbol_numbers.push_back(1);
-    symbols.push_back("#(228)");
-    texts.push_back(series[s].label.c_str());
   }
   plwidth(1.0);
-  if (!texts.empty()) {
-    const PLINT n = PLINT(texts.size());
-    std::vector<PLINT> text_colours(texts.size(), 15);
-    PLFLT lw, lh;
-    plscol0a(0, 255, 255, 255, 0.85);
-    pllegend(&lw, &lh, PL_LEGEND_BACKGROUND | PL_LEGEND_BOUNDING_BOX, PL_POSITION_TOP | PL_POSITION_LEFT | PL_POSITION_INSIDE,
-             0.0, 0.0, 0.05, 0, 15, 1, 0, 0, n, opts.data(), 1.0, 0.7, 2.0, 0.0, text_colours.data(), texts.data(),
-             nullptr, nullptr, nullptr, nullptr, colours.data(), styles.data(), widths.data(), symbol_colours.data(),
-             symbol_scales.data(), symbol_numbers.data(), symbols.data());
-  }
+  Legend(series, slots, markers);
   out.Commit();
+}
+
+const char* PaletteCss(int index) {
+  static const char* kCss[9] = {"#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e",
+                                "#8c564b", "#e377c2", "#17becf", "#b9b9b9"};
+  return kCss[index == kGrey ? 8 : (index % 8 + 8) % 8];
 }
 
 }  // namespace brdfkit::validate
