@@ -198,14 +198,12 @@ class PoulinFournier {
   // Along the cylinders the lobe is the Phong lobe of exponent e; across
   // them the normals of the arc (up to theta_m from z) spread it further, up
   // to the whole hemisphere (width 1). x and y get the rotated marginals.
+  // The narrowest lobe along both axes is the local Phong lobe: reflected by
+  // the plane strip and the cylinder tops (normals near z) it keeps its width
+  // across the cylinders too; the cylinders' sides add a broad part there.
   LobeWidth Width(const double* p) const {
-    const double along = PhongExponentWidth(At(p, kE));
-    const double h = At(p, kH);
-    const double theta_m = std::atan2(std::sqrt(h * (2 - h)), 1 - h);
-    const double across = std::min(1.0, std::max(along, theta_m));
-    const double c = std::cos(At(p, kAngle)), sn = std::sin(At(p, kAngle));
-    return {std::sqrt(across * across * sn * sn + along * along * c * c),
-            std::sqrt(across * across * c * c + along * along * sn * sn)};
+    const double w = PhongExponentWidth(At(p, kE));
+    return {w, w};
   }
 
   static ModelInfo Info() {

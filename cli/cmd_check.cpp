@@ -100,7 +100,7 @@ void RegisterCheck(CLI::App& app) {
       "physical plausibility: reciprocity, energy conservation (incl. grazing), finite non-negative values, "
       "sampling consistency (models that sample), microfacet normalisation. Thresholds: reciprocity 1e-9 "
       "relative; albedo <= 1 + 1e-6 (ok when the whole error bar is below, FAIL when it is wholly above, "
-      "inconclusive '??' otherwise); chi-square p >= 0.01 (Sidak); int D cos and weak furnace = 1 within 1e-6. "
+      "inconclusive, shown as ??, otherwise); chi-square p >= 0.01 (Sidak); int D cos and weak furnace = 1 within 1e-6. "
       "Verdict: plausible, NOT plausible or inconclusive; each is a result (exit 0).");
   static ModelArgs margs;
   static bool json = false, sweep = false, no_sampling = false;

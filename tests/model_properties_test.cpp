@@ -144,7 +144,9 @@ TEST_P(ModelProperties, ReciprocalWhereClaimed) {
   }
   if (info_.reciprocal) {
     EXPECT_LE(worst, 1e-12) << info_.name << " claims reciprocity";
-  } else {
+  } else if (info_.settings.empty()) {
+    // An analytic model that says it is not reciprocal must show it; a
+    // measured one (settings: a file) is as reciprocal as its data.
     EXPECT_GT(worst, 1e-3) << info_.name << " says it is not reciprocal, yet it is";
   }
 }

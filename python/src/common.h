@@ -115,6 +115,10 @@ class CancellableBxdf final : public Bxdf<double> {
     return base_.Pdf(p, wo, wi);
   }
   double SampleWeight(const double* p) const override { return base_.SampleWeight(p); }
+  bool CanSample() const override { return base_.CanSample(); }
+  unsigned Kind() const override { return base_.Kind(); }
+  LobeWidth Width(const double* p) const override { return base_.Width(p); }
+  bool ChannelsIndependent() const override { return base_.ChannelsIndependent(); }
   const MicrofacetView<double>* Microfacet() const override { return base_.Microfacet(); }
 
  private:
