@@ -89,7 +89,6 @@ def _key_path(path):
 
 
 def _schema_error(job_path, error):
-    import jsonschema  # noqa: F401  (only for the error type's attributes)
     path = list(error.absolute_path)
     if error.validator == "additionalProperties":
         extra = sorted(set(error.instance) - set(error.schema.get("properties", {})))
@@ -98,8 +97,6 @@ def _schema_error(job_path, error):
             hint = difflib.get_close_matches(extra[0], known, n=1)
             return JobError(f"{job_path}: {_key_path(path + [extra[0]])}: unknown key"
                             + (f" (did you mean {hint[0]}?)" if hint else f" (known: {', '.join(known)})"))
-    if error.validator == "required":
-        return JobError(f"{job_path}: {_key_path(path)}: {error.message}")
     return JobError(f"{job_path}: {_key_path(path)}: {error.message}")
 
 
