@@ -1,7 +1,11 @@
 #include <algorithm>
 #include <cctype>
+#include <cmath>
 #include <cstdio>
 #include <iostream>
+#include <memory>
+
+#include <tbb/global_control.h>
 
 #include "cli/common.h"
 #include "cli/tasks.h"
@@ -33,7 +37,8 @@ void RegisterAlbedo(CLI::App& app) {
   static ModelArgs margs;
   static std::string axes, nodes = "uniform", csv, exr, header, prefix;
   static double tolerance = validate::AlbedoQuadratureOptions{}.abs_tolerance, accept_error = 0;
-  static int channel = 0;
+  static std::string slice;
+  static int channel = 0, threads = 0;
   static bool json = false;
   AddModelOptions(cmd, margs);
   cmd->add_option("--axes", axes,
@@ -59,6 +64,10 @@ void RegisterAlbedo(CLI::App& app) {
                   "entry above it is not written: the entries are listed and the exit code is 1")
       ->check(CLI::Range(1e-12, 1e3));
   cmd->add_option("--channel", channel, "RGB channel tabulated (0, 1, 2)")->check(CLI::Range(0, 2));
+  cmd->add_option("--slice", slice,
+                  "BEGIN:END: only nodes BEGIN..END-1 of the first parameter axis, with the full axis's node values "
+                  "(pieces of one table computed apart and joined along that axis)");
+  cmd->add_option("--threads", threads, "threads (default: all cores)")->check(CLI::PositiveNumber);
   cmd->add_flag("--json", json, "print the tables as JSON on stdout");
   cmd->callback([] {
     const LoadedModel m = LoadModel(margs);
@@ -72,6 +81,20 @@ void RegisterAlbedo(CLI::App& app) {
     req.rule = nodes == "gauss" ? validate::NodeRule::kGauss : validate::NodeRule::kUniform;
     req.quadrature.abs_tolerance = tolerance;
     req.channel = channel;
+    if (!slice.empty()) {
+      const std::size_t colon = slice.find(':');
+      double b = -1, e = -1;
+      if (colon == std::string::npos || !ParseDouble(slice.substr(0, colon), b) ||
+          !ParseDouble(slice.substr(colon + 1), e) || b != std::floor(b) || e != std::floor(e) || b < 0 || e <= b ||
+          e > 1e9)
+        throw UsageError("--slice '" + slice + "': expected BEGIN:END, whole numbers with 0 <= BEGIN < END");
+      req.slice_begin = static_cast<std::size_t>(b);
+      req.slice_end = static_cast<std::size_t>(e);
+    }
+    std::unique_ptr<tbb::global_control> limit;
+    if (threads > 0)
+      limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
+                                                    static_cast<std::size_t>(threads));
     const validate::AlbedoTable t = validate::BuildAlbedoTable(m.model, m.params, req);
     const double accepted = std::max(accept_error, tolerance);
     const std::vector<validate::AlbedoMiss> misses = validate::EntriesAboveTolerance(t, accepted);

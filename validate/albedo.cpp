@@ -327,6 +327,16 @@ AlbedoTable BuildAlbedoTable(const Model& model, const std::vector<double>& base
                        "] is outside the parameter's range [" + FormatDouble(pi.lower) + ", " +
                        FormatDouble(pi.upper) + "]");
     MakeNodes(axis, a.count, lo, hi, req.rule);
+    if (k == 1 && (req.slice_begin != 0 || req.slice_end != static_cast<std::size_t>(-1))) {
+      const std::size_t n = axis.nodes.size(), end = std::min(req.slice_end, n);
+      if (req.slice_begin >= end || (req.slice_end != static_cast<std::size_t>(-1) && req.slice_end > n))
+        throw ModelError("slice " + std::to_string(req.slice_begin) + ":" + std::to_string(req.slice_end) +
+                         " of axis '" + a.name + "': expected BEGIN < END <= " + std::to_string(n) +
+                         " (the axis has " + std::to_string(n) + " nodes)");
+      axis.nodes = std::vector<double>(axis.nodes.begin() + req.slice_begin, axis.nodes.begin() + end);
+      if (!axis.weights.empty())
+        axis.weights = std::vector<double>(axis.weights.begin() + req.slice_begin, axis.weights.begin() + end);
+    }
     if (a.name == "f0") t.f0_axis = static_cast<int>(t.params.size());
     t.params.push_back(std::move(axis));
   }

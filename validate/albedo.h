@@ -113,6 +113,10 @@ struct AlbedoTableRequest {
   NodeRule rule = NodeRule::kUniform;
   AlbedoQuadratureOptions quadrature;
   int channel = 0;  // RGB channel tabulated (the models' grey parameters make all three equal)
+  // Only nodes [slice_begin, slice_end) of the first parameter axis: a slice
+  // of the full table with the same node values, so that one table can be
+  // computed in pieces and the pieces joined along that axis.
+  std::size_t slice_begin = 0, slice_end = static_cast<std::size_t>(-1);
   // Called from the worker threads after each cell or average with the
   // number done and the total; an exception it throws stops the table and
   // propagates (a user's Ctrl-C).
