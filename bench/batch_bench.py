@@ -1,6 +1,6 @@
 """Scale figures of brdfkit.batch, measured in one run on this machine.
 
-    PYTHONPATH=python /usr/bin/python3 bench/batch_bench.py build/brdfkit [WORKDIR]
+    PYTHONPATH=build/python /usr/bin/python3 bench/batch_bench.py build/brdfkit [WORKDIR]
 
 1. Throughput of one batch (6 CSV materials x 2 models x 2 metrics) on a
    local cluster of 1 and of 2 worker processes: the ratio.

@@ -20,7 +20,7 @@ if(BRDFKIT_ROBUSTNESS_TESTS AND BRDFKIT_SANITIZER_SUITE AND NOT BRDFKIT_SANITIZE
     COMMAND ${CMAKE_COMMAND} -DSOURCE_DIR=${PROJECT_SOURCE_DIR} -DBINARY_DIR=${PROJECT_BINARY_DIR}/asan
             -DCXX=${BRDFKIT_CLANGXX} -P ${PROJECT_SOURCE_DIR}/cmake/SanitizeSuite.cmake)
   # Started first (ctest runs the longest tests first once it knows them).
-  set_tests_properties(sanitizers PROPERTIES TIMEOUT 1500 COST 1000)
+  set_tests_properties(sanitizers PROPERTIES TIMEOUT 3600 COST 1000)
 endif()
 
 if(BRDFKIT_ROBUSTNESS_TESTS AND NOT BRDFKIT_SANITIZE)

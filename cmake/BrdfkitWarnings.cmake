@@ -8,6 +8,7 @@ target_compile_options(brdfkit_warnings INTERFACE
   $<$<CXX_COMPILER_ID:GNU>:-Wno-restrict>
   $<$<BOOL:${BRDFKIT_WERROR}>:-Werror>)
 if(BRDFKIT_SANITIZE)
-  target_compile_options(brdfkit_warnings INTERFACE -fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=all)
+  target_compile_options(brdfkit_warnings INTERFACE -fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=all
+    $<$<CXX_COMPILER_ID:Clang>:-fsanitize-ignorelist=${PROJECT_SOURCE_DIR}/cmake/ubsan_ignore.txt>)
   target_link_options(brdfkit_warnings INTERFACE -fsanitize=address,undefined)
 endif()

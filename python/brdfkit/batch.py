@@ -3,7 +3,7 @@
     python3 -m brdfkit.batch JOB.json [--scheduler tcp://HOST:PORT] [--workers N]
                                       [--out DIR] [--brdfkit PATH] [--ship-data] [--dry-run]
 
-A job file (schema: examples/batch.schema.json) names data files (globs,
+A job file (schema: brdfkit/batch.schema.json) names data files (globs,
 relative to the job file), the models and metrics to cross with them, and
 albedo tables to split into slices along their first parameter axis. Each
 work unit runs the brdfkit command-line tool as a subprocess (`brdfkit fit
@@ -39,7 +39,7 @@ import subprocess
 import sys
 import time
 
-SCHEMA_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "examples", "batch.schema.json")
+SCHEMA_PATH = os.path.join(os.path.dirname(os.path.abspath(__file__)), "batch.schema.json")
 METRICS = ["l2", "relative", "cosine", "log", "cbrt"]
 MERL_BYTES = 12 + 3 * 90 * 90 * 180 * 8
 
@@ -521,7 +521,7 @@ def run(job, exe, out, scheduler=None, workers=None, ship_data=False, log=print)
 
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="python3 -m brdfkit.batch", description=__doc__.split("\n\n")[0])
-    ap.add_argument("job", help="job file (JSON, examples/batch.schema.json)")
+    ap.add_argument("job", help="job file (JSON, brdfkit/batch.schema.json)")
     ap.add_argument("--scheduler", help="tcp://HOST:PORT of a running dask scheduler (default: a local cluster)")
     ap.add_argument("--workers", type=int, help="worker processes of the local cluster (default: one per core)")
     ap.add_argument("--out", help="output folder (default: the job's \"output\", or batch-out)")

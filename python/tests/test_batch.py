@@ -1,7 +1,7 @@
 """brdfkit.batch on a local Dask cluster bound to 127.0.0.1.
 
-The executable is $BRDFKIT_EXE (ctest sets it), else build/brdfkit of the
-source tree. Every wait is bounded: subprocesses by timeouts, polls by
+The executable is $BRDFKIT_EXE and the package is found on $PYTHONPATH (ctest
+sets both), else build/brdfkit and build/python of the source tree. Every wait is bounded: subprocesses by timeouts, polls by
 deadlines.
 """
 
@@ -17,7 +17,7 @@ import pytest
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 EXE = os.environ.get("BRDFKIT_EXE", os.path.join(ROOT, "build", "brdfkit"))
 PY = sys.executable
-ENV = dict(os.environ, PYTHONPATH=os.path.join(ROOT, "python"), BRDFKIT_EXE=EXE)
+ENV = dict(os.environ, PYTHONPATH=os.environ.get("PYTHONPATH") or os.path.join(ROOT, "build", "python"), BRDFKIT_EXE=EXE)
 FIT_OPTIONS = {"max_iterations": 50, "starts": 2}
 ALBEDO = {"name": "ggx", "model": "ggx", "axes": "mu:6,alpha:5:0.2:1", "slices": 3}
 
