@@ -330,11 +330,24 @@ def run_unit(unit, exe, version, data=None):
 
 def write_atomic(path, text):
     tmp = f"{path}.{os.getpid()}.tmp"
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        # A stop (Ctrl-C) or a full disk mid-write leaves no partial file behind.
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+
+
+def _remove_stale_temporaries(folder):
+    """Temporaries of a process killed outright (SIGKILL) mid-write."""
+    for name in os.listdir(folder):
+        if name.endswith(".tmp"):
+            os.remove(os.path.join(folder, name))
 
 
 def _unit_file(out, unit):
@@ -468,6 +481,7 @@ def run(job, exe, out, scheduler=None, workers=None, ship_data=False, log=print)
     version = brdfkit_version(exe)
     units = plan(job, version)
     os.makedirs(os.path.join(out, "units"), exist_ok=True)
+    _remove_stale_temporaries(os.path.join(out, "units"))
     todo = [u for u in units if load_done(out, u) is None]
     log(f"{len(units)} units, {len(units) - len(todo)} done before, {len(todo)} to run")
     start = time.monotonic()

@@ -144,6 +144,10 @@ def test_killed_worker_unit_retried_elsewhere(data, cluster):
     assert victim not in {r["worker"] for r in summary["fits"] if r["key"] not in done_before}
 
 
+def finished(units):
+    return sorted(n for n in os.listdir(units) if n.endswith(".json"))
+
+
 def test_stopped_batch_resumes(data, cluster):
     folder, reference = data
     address, _ = cluster
@@ -154,7 +158,7 @@ def test_stopped_batch_resumes(data, cluster):
     try:
         deadline = time.monotonic() + 90
         while time.monotonic() < deadline and proc.poll() is None:
-            if os.path.isdir(units) and len(os.listdir(units)) >= 3:
+            if os.path.isdir(units) and len(finished(units)) >= 3:
                 break
             time.sleep(0.02)
         proc.send_signal(signal.SIGINT)
@@ -164,7 +168,8 @@ def test_stopped_batch_resumes(data, cluster):
             proc.kill()
             proc.wait()
     assert proc.returncode == 130
-    before = {n: os.stat(os.path.join(units, n)).st_mtime_ns for n in os.listdir(units)}
+    assert finished(units) == sorted(os.listdir(units)), "the stop left a partial file behind"
+    before = {n: os.stat(os.path.join(units, n)).st_mtime_ns for n in finished(units)}
     assert 3 <= len(before) < len(reference)
     p = batch(job, "--scheduler", address, "--out", out)
     assert p.returncode == 0, p.stderr
