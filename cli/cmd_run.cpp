@@ -33,7 +33,7 @@ json PlanJson(const std::vector<PlanItem>& plan) {
   json j = json::array();
   for (const PlanItem& p : plan)
     j.push_back({{"task", p.task->name},
-                 {"type", TaskTypeName(p.task->type)},
+                 {"type", p.task->TypeName()},
                  {"action", ActionName(p.action)},
                  {"why", p.why},
                  {"key", p.key}});
@@ -43,7 +43,7 @@ json PlanJson(const std::vector<PlanItem>& plan) {
 void PrintPlan(const Scene& scene, const std::vector<PlanItem>& plan, const std::string& out_dir) {
   std::printf("plan for %s (outputs in %s):\n", scene.origin.c_str(), out_dir.c_str());
   for (const PlanItem& p : plan)
-    std::printf("  %-6s %-20s %-12s %s\n", ActionName(p.action), p.task->name.c_str(), TaskTypeName(p.task->type),
+    std::printf("  %-6s %-20s %-12s %s\n", ActionName(p.action), p.task->name.c_str(), p.task->TypeName(),
                 p.why.c_str());
 }
 

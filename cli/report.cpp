@@ -205,7 +205,7 @@ void WriteReport(const std::string& path, const Scene& scene, const std::vector<
     std::string status = p.action == PlanItem::Action::kSkip ? "skipped" : o ? o->status : "not run";
     std::string time = o ? Seconds(o->seconds) + (o->status == "cached" ? " (earlier run)" : "") : "&ndash;";
     h += "<tr><td><a href=\"#task-" + Esc(p.task->name) + "\">" + Esc(p.task->name) + "</a></td><td>" +
-         TaskTypeName(p.task->type) + "</td><td>" + status + "</td><td>" + Esc(p.why) + "</td><td>" + time +
+         p.task->TypeName() + "</td><td>" + status + "</td><td>" + Esc(p.why) + "</td><td>" + time +
          "</td></tr>\n";
   }
   h += "</table>\n";

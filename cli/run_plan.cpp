@@ -112,11 +112,8 @@ std::vector<PlanItem> MakePlan(const Scene& scene, const std::string& out_dir, b
     k["brdfkit"] = BRDFKIT_VERSION;
     k["task"] = t.json;
     json mats = json::object(), insts = json::object(), deps = json::object();
-    std::vector<std::string> material_names = t.materials;
-    if (!t.material.empty()) material_names.push_back(t.material);
-    if (!t.data_material.empty()) material_names.push_back(t.data_material);
-    for (const std::string& m : material_names) mats[m] = MaterialKey(scene, m, keys);
-    if (!t.instrument.empty()) insts[t.instrument] = InstrumentKey(scene, t.instrument);
+    for (const std::string& m : t.Materials()) mats[m] = MaterialKey(scene, m, keys);
+    for (const std::string& i : t.Instruments()) insts[i] = InstrumentKey(scene, i);
     for (const std::string& d : scene.Dependencies(t)) deps[d] = keys.at(d);
     k["materials"] = mats;
     k["instruments"] = insts;

@@ -109,13 +109,16 @@ void HalfDiffImage(const std::string& path, const std::string& title,
   HalfDiffImage(path, title, HalfDiffLog10(f));
 }
 
+}  // namespace
+
 // ------------------------------------------------------------------ check
 
-TaskOutcome RunCheck(const TaskSpec& t, const RunContext& ctx) {
+TaskOutcome CheckTask::Run(const TaskSpec& spec, const RunContext& ctx) const {
+  const CheckTask& t = *this;
   TaskOutcome o;
-  TaskDir dir(ctx, t.name);
+  TaskDir dir(ctx, spec.name);
   json materials = json::array();
-  Progress progress("check " + t.name, double(t.materials.size()), ctx.quiet);
+  Progress progress("check " + spec.name, double(t.materials.size()), ctx.quiet);
   std::size_t implausible = 0, inconclusive = 0;
   for (std::size_t k = 0; k < t.materials.size(); ++k) {
     ThrowIfInterrupted();
@@ -144,22 +147,23 @@ TaskOutcome RunCheck(const TaskSpec& t, const RunContext& ctx) {
 
 // ------------------------------------------------------------------ albedo
 
-TaskOutcome RunAlbedo(const TaskSpec& t, const RunContext& ctx) {
+TaskOutcome AlbedoTask::Run(const TaskSpec& spec, const RunContext& ctx) const {
+  const AlbedoTask& t = *this;
   TaskOutcome o;
-  TaskDir dir(ctx, t.name);
+  TaskDir dir(ctx, spec.name);
   const Model model = Model::Parse(t.model);
   validate::AlbedoTableRequest req;
   req.axes = validate::ParseAxes(t.axes);
   req.rule = t.gauss_nodes ? validate::NodeRule::kGauss : validate::NodeRule::kUniform;
   req.quadrature.abs_tolerance = t.tolerance;
-  ThreadedProgress progress("albedo " + t.name, ctx.quiet);
+  ThreadedProgress progress("albedo " + spec.name, ctx.quiet);
   req.progress = progress.Callback();
   const validate::AlbedoTable table = validate::BuildAlbedoTable(model, t.params, req);
   progress.Finish();
   const double accepted = std::max(t.accept_error, t.tolerance);
   const std::vector<validate::AlbedoMiss> misses = validate::EntriesAboveTolerance(table, accepted);
   if (!misses.empty())
-    throw ResultError("task '" + t.name + "': " + validate::DescribeMisses(misses, accepted) +
+    throw ResultError("task '" + spec.name + "': " + validate::DescribeMisses(misses, accepted) +
                       "\nNarrow the parameter range in \"axes\" or set \"accept_error\".");
   for (const std::string& f : t.formats) {
     if (f == "csv") {
@@ -209,6 +213,8 @@ TaskOutcome RunAlbedo(const TaskSpec& t, const RunContext& ctx) {
 
 // ------------------------------------------------------------------ synth
 
+namespace {
+
 // Measured (markers) and optionally modelled (lines) in-plane slices:
 // samples with both directions in the plane of incidence, grouped by
 // theta_i; signed angle of wo from the normal, negative on the specular side.
@@ -250,13 +256,16 @@ std::vector<Slice> InPlaneSlices(const std::vector<fit::Sample>& samples, int ch
   return out;
 }
 
-TaskOutcome RunSynth(const TaskSpec& t, const RunContext& ctx) {
+}  // namespace
+
+TaskOutcome SynthTask::Run(const TaskSpec& spec, const RunContext& ctx) const {
+  const SynthTask& t = *this;
   TaskOutcome o;
-  TaskDir dir(ctx, t.name);
+  TaskDir dir(ctx, spec.name);
   const MaterialSpec& m = ctx.scene.materials.at(t.material);
   const LoadedModel lm = MaterialModel(m, ctx);
   const InstrumentSpec& in = ctx.scene.instruments.at(t.instrument);
-  ThreadedProgress progress("synth " + t.name, ctx.quiet);
+  ThreadedProgress progress("synth " + spec.name, ctx.quiet);
   if (in.camera) {
     const synth::CameraCapture cap = synth::RenderCamera(in.rig, lm.model, lm.params, t.seed);
     ThrowIfInterrupted();
@@ -290,7 +299,7 @@ TaskOutcome RunSynth(const TaskSpec& t, const RunContext& ctx) {
   prov.params = lm.params;
   prov.params_text = FormatParams(lm.model.Info(), lm.params);
   prov.seed = t.seed;
-  prov.command = "brdfkit run " + ctx.scene.origin + " (task " + t.name + ")";
+  prov.command = "brdfkit run " + ctx.scene.origin + " (task " + spec.name + ")";
   // data.csv is always written: it is what fits read.
   synth::WriteSynthOutput(dir.Abs("data.csv"), inst, r, prov);
   o.files.push_back(dir.Rel("data.csv"));
@@ -346,9 +355,10 @@ TaskOutcome RunSynth(const TaskSpec& t, const RunContext& ctx) {
 
 // ------------------------------------------------------------------ fit
 
-TaskOutcome RunFit(const TaskSpec& t, const RunContext& ctx) {
+TaskOutcome FitTask::Run(const TaskSpec& spec, const RunContext& ctx) const {
+  const FitTask& t = *this;
   TaskOutcome o;
-  TaskDir dir(ctx, t.name);
+  TaskDir dir(ctx, spec.name);
   const std::string data_path = !t.data_task.empty()
                                     ? (fs::path(ctx.out_dir) / t.data_task / "data.csv").string()
                                     : ctx.scene.materials.at(t.data_material).path;
@@ -366,7 +376,7 @@ TaskOutcome RunFit(const TaskSpec& t, const RunContext& ctx) {
     inst = ctx.scene.instruments.at(t.instrument).instrument;
     opt.instrument = &inst;
   }
-  Progress progress("fit " + t.name, 0, ctx.quiet);  // the number of iterations is not known in advance
+  Progress progress("fit " + spec.name, 0, ctx.quiet);  // the number of iterations is not known in advance
   opt.progress = [&](int iteration, double, double cost) {
     // Between iterations: the solver's state is consistent, so stopping here is clean.
     ThrowIfInterrupted();
@@ -382,7 +392,7 @@ TaskOutcome RunFit(const TaskSpec& t, const RunContext& ctx) {
   try {
     WriteFitTracePlot(dir.Abs("trace.svg"), r);
     o.files.push_back(dir.Rel("trace.svg"));
-    o.figures.push_back({"Fit " + t.name + ": error against run time", dir.Rel("trace.svg"),
+    o.figures.push_back({"Fit " + spec.name + ": error against run time", dir.Rel("trace.svg"),
                          "Metric RMSE after each accepted iteration against seconds since the start: the "
                          "multi-start solves (grey, each on a subset of the samples), then the final solve from the "
                          "best start on all samples."});
@@ -416,7 +426,7 @@ TaskOutcome RunFit(const TaskSpec& t, const RunContext& ctx) {
     validate::PolarPlot(dir.Abs("slices.svg"), "measured and fitted f_r (green), plane of incidence", "f_r [1/sr]",
                         series, markers, colours, true, 3);
     o.files.push_back(dir.Rel("slices.svg"));
-    o.figures.push_back({"Fit " + t.name + ": measured against fitted", dir.Rel("slices.svg"),
+    o.figures.push_back({"Fit " + spec.name + ": measured against fitted", dir.Rel("slices.svg"),
                          "Points: data; lines: the fitted " + r.model.Spec() + ", one colour per theta_i. Light from positive angles; "
                          "log radius over three decades below the peak."});
   }
@@ -453,7 +463,7 @@ TaskOutcome RunFit(const TaskSpec& t, const RunContext& ctx) {
       validate::LinePlot(dir.Abs("residuals.svg"), "fit residuals: RMS of (fitted - measured) / measured", "theta_h [deg]",
                          "RMS relative residual", series, false, true);
       o.files.push_back(dir.Rel("residuals.svg"));
-      o.figures.push_back({"Fit " + t.name + ": residuals", dir.Rel("residuals.svg"),
+      o.figures.push_back({"Fit " + spec.name + ": residuals", dir.Rel("residuals.svg"),
                            "Per 5-degree bin of the half-vector angle theta_h, per channel; the model is evaluated at the nominal "
                            "directions (without the instrument's apertures)."});
     }
@@ -490,25 +500,25 @@ TaskOutcome RunFit(const TaskSpec& t, const RunContext& ctx) {
       const double f = (wi.z() > 0 && wo.z() > 0) ? fitted->Eval(r.params.data(), wi, wo)[1] : NAN;
       fitted_log[k] = f > 0 ? std::log10(f) : NAN;
     }
-    const std::string spec = r.model.Spec();
+    const std::string fitted_spec = r.model.Spec();
     // The fitted image shares the measured colour range, so equal colours are equal values.
     const validate::ColourScale measured_scale{"f_r [1/sr]", lo, hi, true};
     if (hi >= lo) {
       validate::HeatMap(dir.Abs("halfdiff_measured.svg"), "measured f_r (green), phi_d = 90 deg", "theta_h [deg]",
                         "theta_d [deg]", nodes, nodes, log_meas, measured_scale);
-      o.figures.push_back({"Fit " + t.name + ": measured theta_h x theta_d image", dir.Rel("halfdiff_measured.svg"),
+      o.figures.push_back({"Fit " + spec.name + ": measured theta_h x theta_d image", dir.Rel("halfdiff_measured.svg"),
                            "Mean measured f_r per 3-degree cell (samples within 15 degrees of phi_d = 90 deg); grey "
                            "cells hold no sample."});
     }
-    validate::HeatMap(dir.Abs("halfdiff.svg"), "fitted " + spec + " f_r (green), phi_d = 90 deg", "theta_h [deg]",
+    validate::HeatMap(dir.Abs("halfdiff.svg"), "fitted " + fitted_spec + " f_r (green), phi_d = 90 deg", "theta_h [deg]",
                       "theta_d [deg]", nodes, nodes, fitted_log, hi >= lo ? measured_scale : validate::ColourScale{"f_r [1/sr]", NAN, NAN, true});
-    o.figures.push_back({"Fit " + t.name + ": fitted theta_h x theta_d image", dir.Rel("halfdiff.svg"),
+    o.figures.push_back({"Fit " + spec.name + ": fitted theta_h x theta_d image", dir.Rel("halfdiff.svg"),
                          "The fitted model at the cell centres, on the measured image's colour scale (values beyond it "
                          "saturate at the end colours); grey: below the horizon."});
     if (hi >= lo) {
       validate::HeatMap(dir.Abs("halfdiff_ratio.svg"), "fitted / measured (green), phi_d = 90 deg", "theta_h [deg]",
                         "theta_d [deg]", nodes, nodes, log_ratio, {"fitted / measured", -std::log10(2.0), std::log10(2.0), true});
-      o.figures.push_back({"Fit " + t.name + ": fitted / measured", dir.Rel("halfdiff_ratio.svg"),
+      o.figures.push_back({"Fit " + spec.name + ": fitted / measured", dir.Rel("halfdiff_ratio.svg"),
                            "Ratio of the fitted model to the data per cell, on a log scale from 1/2 to 2 (beyond it "
                            "saturated); grey cells hold no sample."});
     }
@@ -521,9 +531,10 @@ TaskOutcome RunFit(const TaskSpec& t, const RunContext& ctx) {
 
 // ------------------------------------------------------------------ convergence
 
-TaskOutcome RunConvergenceTask(const TaskSpec& t, const RunContext& ctx) {
+TaskOutcome ConvergenceTask::Run(const TaskSpec& spec, const RunContext& ctx) const {
+  const ConvergenceTask& t = *this;
   TaskOutcome o;
-  TaskDir dir(ctx, t.name);
+  TaskDir dir(ctx, spec.name);
   const ConvergenceOutcome c = RunConvergence(dir.abs.string(), t.methods, t.quick, false, ctx.quiet);
   o.files = {dir.Rel("convergence.csv"), dir.Rel("convergence.svg"), dir.Rel("convergence_summary.md")};
   o.figures.push_back({"Hemisphere integrators: error against run time", dir.Rel("convergence.svg"),
@@ -532,22 +543,13 @@ TaskOutcome RunConvergenceTask(const TaskSpec& t, const RunContext& ctx) {
   return o;
 }
 
-}  // namespace
-
 TaskOutcome RunTask(const TaskSpec& task, const RunContext& ctx) {
   const auto start = std::chrono::steady_clock::now();
-  TaskOutcome o;
-  switch (task.type) {
-    case TaskSpec::Type::kCheck: o = RunCheck(task, ctx); break;
-    case TaskSpec::Type::kAlbedo: o = RunAlbedo(task, ctx); break;
-    case TaskSpec::Type::kSynth: o = RunSynth(task, ctx); break;
-    case TaskSpec::Type::kFit: o = RunFit(task, ctx); break;
-    case TaskSpec::Type::kConvergence: o = RunConvergenceTask(task, ctx); break;
-  }
+  TaskOutcome o = std::visit([&](const auto& options) { return options.Run(task, ctx); }, task.options);
   for (const Figure& f : o.figures)
     if (std::find(o.files.begin(), o.files.end(), f.file) == o.files.end()) o.files.push_back(f.file);
   o.name = task.name;
-  o.type = TaskTypeName(task.type);
+  o.type = task.TypeName();
   o.status = "computed";
   o.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return o;

@@ -33,11 +33,13 @@ std::string Join(const std::vector<std::string>& v) {
   return out;
 }
 
+}  // namespace
+
 // Reads one JSON object, remembering the keys used so that unknown keys
 // (typos) are reported instead of ignored.
-class Reader {
+class SceneReader {
  public:
-  Reader(const json& j, std::string path, const std::string& origin) : j_(j), path_(std::move(path)), origin_(origin) {
+  SceneReader(const json& j, std::string path, const std::string& origin) : j_(j), path_(std::move(path)), origin_(origin) {
     if (!j_.is_object()) Fail(origin_, path_, std::string("expected an object, got ") + j_.type_name());
   }
   std::string Path(const std::string& key) const { return path_.empty() ? key : path_ + "." + key; }
@@ -114,6 +116,8 @@ class Reader {
   std::set<std::string> used_;
 };
 
+namespace {
+
 // Names become folder names and report anchors.
 void CheckName(const std::string& name, const std::string& origin, const std::string& path) {
   if (name.empty() || name.size() > 64) Fail(origin, path, "a name must have 1 to 64 characters");
@@ -149,7 +153,7 @@ std::string ExistingFile(const std::string& base_dir, const std::string& p, cons
 }
 
 // Parameters as "name=value,..." or as an object {"name": value or [r, g, b]}.
-std::vector<double> ReadParams(Reader& r, const std::string& key, const ModelInfo& info) {
+std::vector<double> ReadParams(SceneReader& r, const std::string& key, const ModelInfo& info) {
   std::string text;
   if (r.Has(key)) {
     const json& v = r.Get(key);
@@ -180,7 +184,7 @@ std::vector<double> ReadParams(Reader& r, const std::string& key, const ModelInf
   }
 }
 
-Model ParseModelAt(Reader& r, const std::string& key) {
+Model ParseModelAt(SceneReader& r, const std::string& key) {
   const std::string spec = r.String(key);
   try {
     return Model::Parse(spec);
@@ -193,17 +197,6 @@ const std::set<std::string> kSynthFormats = {"csv", "binary", "exr"};
 const std::set<std::string> kAlbedoFormats = {"csv", "exr", "header"};
 
 }  // namespace
-
-const char* TaskTypeName(TaskSpec::Type t) {
-  switch (t) {
-    case TaskSpec::Type::kCheck: return "check";
-    case TaskSpec::Type::kAlbedo: return "albedo";
-    case TaskSpec::Type::kSynth: return "synth";
-    case TaskSpec::Type::kFit: return "fit";
-    case TaskSpec::Type::kConvergence: return "convergence";
-  }
-  return "?";
-}
 
 const TaskSpec* Scene::FindTask(const std::string& name) const {
   for (const TaskSpec& t : tasks)
@@ -220,26 +213,15 @@ std::vector<std::string> Scene::Dependencies(const TaskSpec& task) const {
     auto it = materials.find(m);
     if (it != materials.end() && it->second.kind == MaterialSpec::Kind::kFit) add(it->second.fit_task);
   };
-  switch (task.type) {
-    case TaskSpec::Type::kCheck:
-      for (const std::string& m : task.materials) material_dep(m);
-      break;
-    case TaskSpec::Type::kSynth:
-      material_dep(task.material);
-      break;
-    case TaskSpec::Type::kFit:
-      add(task.data_task);
-      break;
-    default:
-      break;
-  }
+  for (const std::string& t : std::visit([](const auto& o) { return o.Tasks(); }, task.options)) add(t);
+  for (const std::string& m : task.Materials()) material_dep(m);
   return out;
 }
 
 namespace {
 
 // One entry of "materials".
-MaterialSpec ParseMaterial(Reader& r, const Scene& s, const std::string& name, const std::string& path) {
+MaterialSpec ParseMaterial(SceneReader& r, const Scene& s, const std::string& name, const std::string& path) {
   MaterialSpec m;
   m.name = name;
   const int kinds = int(r.Has("model")) + int(r.Has("merl")) + int(r.Has("table")) + int(r.Has("fit"));
@@ -271,7 +253,7 @@ MaterialSpec ParseMaterial(Reader& r, const Scene& s, const std::string& name, c
 }
 
 // One entry of "instruments".
-InstrumentSpec ParseInstrumentEntry(Reader& r, const Scene& s, const std::string& name, const std::string& path) {
+InstrumentSpec ParseInstrumentEntry(SceneReader& r, const Scene& s, const std::string& name, const std::string& path) {
   InstrumentSpec in;
   in.name = name;
   const std::string type = r.String("type");
@@ -303,15 +285,18 @@ InstrumentSpec ParseInstrumentEntry(Reader& r, const Scene& s, const std::string
 }
 
 // A material of the scene named at `key`.
-const MaterialSpec& NeedMaterial(Reader& r, const Scene& s, const std::string& key, const std::string& name) {
+const MaterialSpec& NeedMaterial(SceneReader& r, const Scene& s, const std::string& key, const std::string& name) {
   auto it = s.materials.find(name);
   if (it == s.materials.end()) r.FailKey(key, "no material named '" + name + "' in \"materials\"");
   return it->second;
 }
 
+}  // namespace
+
 // Each task type owns its keys: one parser per type, each reading its
 // fields of the task object (the common name and type are read before).
-void ParseCheckTask(Reader& r, const Scene& s, TaskSpec& t) {
+void CheckTask::Parse(SceneReader& r, const Scene& s) {
+  CheckTask& t = *this;
   t.materials = r.Strings("materials", true);
   if (t.materials.empty()) r.FailKey("materials", "name at least one material");
   for (std::size_t i = 0; i < t.materials.size(); ++i) {
@@ -324,7 +309,8 @@ void ParseCheckTask(Reader& r, const Scene& s, TaskSpec& t) {
   t.sampling_samples = r.Integer("samples", 100000, 1000, 100000000);
 }
 
-void ParseAlbedoTask(Reader& r, const Scene& /*scene*/, TaskSpec& t) {
+void AlbedoTask::Parse(SceneReader& r, const Scene& /*scene*/) {
+  AlbedoTask& t = *this;
   const Model model = ParseModelAt(r, "model");
   if (!model.Info().settings.empty()) r.FailKey("model", "albedo tables are made of analytic models");
   t.model = model.Spec();
@@ -354,7 +340,8 @@ void ParseAlbedoTask(Reader& r, const Scene& /*scene*/, TaskSpec& t) {
     if (!kAlbedoFormats.count(f)) r.FailKey("formats", "unknown format '" + f + "' (expected csv, exr, header)");
 }
 
-void ParseSynthTask(Reader& r, const Scene& s, TaskSpec& t) {
+void SynthTask::Parse(SceneReader& r, const Scene& s) {
+  SynthTask& t = *this;
   t.material = r.String("material");
   const MaterialSpec& m = NeedMaterial(r, s, "material", t.material);
   if (m.kind == MaterialSpec::Kind::kTable)
@@ -379,11 +366,12 @@ void ParseSynthTask(Reader& r, const Scene& s, TaskSpec& t) {
   }
 }
 
-void ParseFitTask(Reader& r, const Scene& s, TaskSpec& t) {
+void FitTask::Parse(SceneReader& r, const Scene& s) {
+  FitTask& t = *this;
   const std::string data = r.String("data");
   if (const TaskSpec* d = s.FindTask(data)) {
-    if (d->type != TaskSpec::Type::kSynth)
-      r.FailKey("data", "task '" + data + "' is a " + TaskTypeName(d->type) + " task; data comes from a synth task");
+    if (!d->As<SynthTask>())
+      r.FailKey("data", "task '" + data + "' is a " + d->TypeName() + " task; data comes from a synth task");
     t.data_task = data;
   } else if (s.materials.count(data)) {
     const MaterialSpec& m = s.materials.at(data);
@@ -429,7 +417,8 @@ void ParseFitTask(Reader& r, const Scene& s, TaskSpec& t) {
   t.starts = static_cast<int>(r.Integer("starts", t.starts, 1, 100));
 }
 
-void ParseConvergenceTask(Reader& r, const Scene& /*scene*/, TaskSpec& t) {
+void ConvergenceTask::Parse(SceneReader& r, const Scene& /*scene*/) {
+  ConvergenceTask& t = *this;
   t.quick = r.Bool("quick", true);
   t.methods = r.Strings("methods", false);
   for (const std::string& m : t.methods) {
@@ -441,18 +430,27 @@ void ParseConvergenceTask(Reader& r, const Scene& /*scene*/, TaskSpec& t) {
   }
 }
 
-struct TaskParser {
-  const char* name;
-  TaskSpec::Type type;
-  void (*parse)(Reader&, const Scene&, TaskSpec&);
-};
-const TaskParser kTaskParsers[] = {
-    {"check", TaskSpec::Type::kCheck, ParseCheckTask},
-    {"albedo", TaskSpec::Type::kAlbedo, ParseAlbedoTask},
-    {"synth", TaskSpec::Type::kSynth, ParseSynthTask},
-    {"fit", TaskSpec::Type::kFit, ParseFitTask},
-    {"convergence", TaskSpec::Type::kConvergence, ParseConvergenceTask},
-};
+std::vector<std::string> TaskTypeNames() {
+  std::vector<std::string> out;
+  [&out]<std::size_t... I>(std::index_sequence<I...>) {
+    (out.push_back(std::variant_alternative_t<I, TaskOptions>::kName), ...);
+  }(std::make_index_sequence<std::variant_size_v<TaskOptions>>());
+  return out;
+}
+
+namespace {
+
+// The options of the task type named `type`, default-constructed.
+bool MakeTaskOptions(const std::string& type, TaskOptions& out) {
+  bool found = false;
+  [&]<std::size_t... I>(std::index_sequence<I...>) {
+    ((!found && type == std::variant_alternative_t<I, TaskOptions>::kName
+          ? (out.emplace<I>(), found = true)
+          : false),
+     ...);
+  }(std::make_index_sequence<std::variant_size_v<TaskOptions>>());
+  return found;
+}
 
 }  // namespace
 
@@ -463,9 +461,7 @@ nlohmann::json SceneNames() {
   for (fit::Metric m : fit::AllMetrics()) metrics.push_back(fit::MetricName(m));
   for (fit::Loss l : fit::AllLosses()) losses.push_back(fit::LossName(l));
   for (fit::LinearSolver l : fit::AllLinearSolvers()) solvers.push_back(fit::LinearSolverName(l));
-  json types = json::array();
-  for (const TaskParser& p : kTaskParsers) types.push_back(p.name);
-  return json{{"task_types", types},
+  return json{{"task_types", TaskTypeNames()},
               {"instrument_types", {"gonioreflectometer", "camera"}},
               {"albedo_nodes", {"uniform", "gauss"}},
               {"albedo_formats", kAlbedoFormats},
@@ -490,7 +486,7 @@ Scene ParseScene(const std::string& text, const std::string& origin, const std::
   Scene s;
   s.origin = origin;
   s.base_dir = base_dir;
-  Reader top(root, "", s.origin);
+  SceneReader top(root, "", s.origin);
   top.Only({"$schema", "title", "output", "materials", "instruments", "tasks", "outputs"});
   if (top.Has("$schema")) top.Get("$schema");
   s.title = top.String("title", "");
@@ -504,7 +500,7 @@ Scene ParseScene(const std::string& text, const std::string& origin, const std::
     for (auto it = mats.begin(); it != mats.end(); ++it) {
       const std::string path = "materials." + it.key();
       CheckName(it.key(), s.origin, path);
-      Reader r(it.value(), path, s.origin);
+      SceneReader r(it.value(), path, s.origin);
       MaterialSpec m = ParseMaterial(r, s, it.key(), path);
       r.Finish();
       s.materials[m.name] = m;
@@ -518,7 +514,7 @@ Scene ParseScene(const std::string& text, const std::string& origin, const std::
     for (auto it = insts.begin(); it != insts.end(); ++it) {
       const std::string path = "instruments." + it.key();
       CheckName(it.key(), s.origin, path);
-      Reader r(it.value(), path, s.origin);
+      SceneReader r(it.value(), path, s.origin);
       InstrumentSpec in = ParseInstrumentEntry(r, s, it.key(), path);
       r.Finish();
       s.instruments[in.name] = in;
@@ -530,23 +526,16 @@ Scene ParseScene(const std::string& text, const std::string& origin, const std::
   if (!tasks.is_array() || tasks.empty()) top.FailKey("tasks", "expected a non-empty array of tasks");
   for (std::size_t k = 0; k < tasks.size(); ++k) {
     const std::string path = "tasks[" + std::to_string(k) + "]";
-    Reader r(tasks[k], path, s.origin);
+    SceneReader r(tasks[k], path, s.origin);
     TaskSpec t;
     t.json = tasks[k];
     t.name = r.String("name");
     CheckName(t.name, s.origin, r.Path("name"));
     if (s.FindTask(t.name)) r.FailKey("name", "a task named '" + t.name + "' is already defined");
     const std::string type = r.String("type");
-    const TaskParser* parser = nullptr;
-    for (const TaskParser& p : kTaskParsers)
-      if (type == p.name) parser = &p;
-    if (!parser) {
-      std::string known;
-      for (const TaskParser& p : kTaskParsers) known += std::string(known.empty() ? "" : ", ") + p.name;
-      r.FailKey("type", "unknown task type '" + type + "' (expected one of: " + known + ")");
-    }
-    t.type = parser->type;
-    parser->parse(r, s, t);
+    if (!MakeTaskOptions(type, t.options))
+      r.FailKey("type", "unknown task type '" + type + "' (expected one of: " + Join(TaskTypeNames()) + ")");
+    std::visit([&](auto& o) { o.Parse(r, s); }, t.options);
     r.Finish();
     s.tasks.push_back(std::move(t));
   }
@@ -555,7 +544,7 @@ Scene ParseScene(const std::string& text, const std::string& origin, const std::
   for (const auto& [name, m] : s.materials) {
     if (m.kind != MaterialSpec::Kind::kFit) continue;
     const TaskSpec* t = s.FindTask(m.fit_task);
-    if (!t || t->type != TaskSpec::Type::kFit)
+    if (!t || !t->As<FitTask>())
       Fail(s.origin, "materials." + name + ".fit", "no fit task named '" + m.fit_task + "'");
   }
 

@@ -10,6 +10,8 @@
 #include <cstdint>
 #include <map>
 #include <string>
+#include <type_traits>
+#include <variant>
 #include <vector>
 
 #include "brdf/model.h"
@@ -36,43 +38,119 @@ struct InstrumentSpec {
   std::string file;              // where it was read from, if a file
 };
 
-struct TaskSpec {
-  enum class Type { kCheck, kAlbedo, kSynth, kFit, kConvergence };
-  std::string name;
-  Type type = Type::kCheck;
-  nlohmann::json json;  // the task object as written (part of the cache key)
+struct Scene;
+struct TaskSpec;
+struct TaskOutcome;  // cli/run.h
+struct RunContext;   // cli/run.h
+class SceneReader;   // cli/scene.cpp: reads one JSON object, naming the key path in errors
 
-  // check
+// A task type is one options struct: its name, the keys of its task object
+// (`Parse`, in cli/scene.cpp), what it reads from the scene (materials,
+// instruments, other tasks' outputs), and `Run` (cli/run_tasks.cpp). Adding a
+// type is one such struct and its entry in `TaskOptions`; scene parsing,
+// dependencies, cache keys, `run --names` and dispatch follow from them.
+struct TaskTypeBase {
+  // Scene materials, instruments and tasks whose outputs this task reads.
+  std::vector<std::string> Materials() const { return {}; }
+  std::vector<std::string> Instruments() const { return {}; }
+  std::vector<std::string> Tasks() const { return {}; }
+};
+
+struct CheckTask : TaskTypeBase {
+  static constexpr const char* kName = "check";
   std::vector<std::string> materials;
   bool sampling = true;
   std::int64_t sampling_samples = 100000;
-  // albedo
-  std::string model;             // also fit
-  std::vector<double> params;    // albedo: fixed parameter values (packed)
+
+  void Parse(SceneReader& r, const Scene& s);
+  std::vector<std::string> Materials() const { return materials; }
+  TaskOutcome Run(const TaskSpec& t, const RunContext& ctx) const;
+};
+
+struct AlbedoTask : TaskTypeBase {
+  static constexpr const char* kName = "albedo";
+  std::string model;
+  std::vector<double> params;  // fixed parameter values (packed)
   std::string axes = "mu:32,alpha:32:0.001:1";  // within the tables' 1e-6 contract
   bool gauss_nodes = false;
   double tolerance = 1e-6;  // as validate::AlbedoQuadratureOptions
   double accept_error = 0;  // largest accepted error estimate (0: the tolerance)
-  std::vector<std::string> formats;  // albedo: csv, exr, header; synth: csv, binary, exr
-  // synth
+  std::vector<std::string> formats;  // csv, exr, header
+
+  void Parse(SceneReader& r, const Scene& s);
+  TaskOutcome Run(const TaskSpec& t, const RunContext& ctx) const;
+};
+
+struct SynthTask : TaskTypeBase {
+  static constexpr const char* kName = "synth";
   std::string material;
-  std::string instrument;  // synth: the instrument; fit: fit through its apertures (optional)
+  std::string instrument;
   std::uint64_t seed = 0;
-  // fit
+  std::vector<std::string> formats;  // csv, binary, exr
+
+  void Parse(SceneReader& r, const Scene& s);
+  std::vector<std::string> Materials() const { return {material}; }
+  std::vector<std::string> Instruments() const { return {instrument}; }
+  TaskOutcome Run(const TaskSpec& t, const RunContext& ctx) const;
+};
+
+struct FitTask : TaskTypeBase {
+  static constexpr const char* kName = "fit";
   std::string data_task;      // a synth task of the scene
   std::string data_material;  // or a measured material (merl / table)
+  std::string model;
   std::string metric = "l2";
   std::string loss = "none";
   std::string solver = "dense_qr";
-  std::string init;           // name=value,... (empty: multi-start)
+  std::string init;        // name=value,... (empty: multi-start)
+  std::string instrument;  // fit through its apertures (optional)
   int max_iterations = 200;
   int starts = 5;
-  // convergence
-  bool quick = true;
-  std::vector<std::string> methods;
+
+  void Parse(SceneReader& r, const Scene& s);
+  std::vector<std::string> Materials() const { return Listed(data_material); }
+  std::vector<std::string> Instruments() const { return Listed(instrument); }
+  std::vector<std::string> Tasks() const { return Listed(data_task); }
+  TaskOutcome Run(const TaskSpec& t, const RunContext& ctx) const;
+
+ private:
+  static std::vector<std::string> Listed(const std::string& n) {
+    return n.empty() ? std::vector<std::string>{} : std::vector<std::string>{n};
+  }
 };
 
-const char* TaskTypeName(TaskSpec::Type t);
+struct ConvergenceTask : TaskTypeBase {
+  static constexpr const char* kName = "convergence";
+  bool quick = true;
+  std::vector<std::string> methods;
+
+  void Parse(SceneReader& r, const Scene& s);
+  TaskOutcome Run(const TaskSpec& t, const RunContext& ctx) const;
+};
+
+using TaskOptions = std::variant<CheckTask, AlbedoTask, SynthTask, FitTask, ConvergenceTask>;
+
+// The names of the task types, in `TaskOptions` order.
+std::vector<std::string> TaskTypeNames();
+
+struct TaskSpec {
+  std::string name;
+  nlohmann::json json;  // the task object as written (part of the cache key)
+  TaskOptions options;
+
+  const char* TypeName() const {
+    return std::visit([](const auto& o) { return std::decay_t<decltype(o)>::kName; }, options);
+  }
+  template <class Type>
+  const Type* As() const { return std::get_if<Type>(&options); }
+  // What the task reads from the scene (see TaskTypeBase).
+  std::vector<std::string> Materials() const {
+    return std::visit([](const auto& o) { return o.Materials(); }, options);
+  }
+  std::vector<std::string> Instruments() const {
+    return std::visit([](const auto& o) { return o.Instruments(); }, options);
+  }
+};
 
 // Every name a scene may use where the schema (examples/scene.schema.json)
 // lists an enumeration, from the libraries' own lists: task and instrument
