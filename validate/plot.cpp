@@ -32,6 +32,9 @@ PLINT Slot(int colour, std::size_t position) {
   return PLINT((colour >= 0 ? std::size_t(colour) : position) % 8) + 1;
 }
 
+// The marker of measured points, in the plot and in its legend alike.
+constexpr const char* kMarker = "#(228)";
+
 // Legend to the right of the plot area, outside it, so it never covers data.
 // Series with an empty label are left out.
 void Legend(const std::vector<Series>& series, const std::vector<PLINT>& slots, const std::vector<bool>& markers) {
@@ -48,7 +51,7 @@ void Legend(const std::vector<Series>& series, const std::vector<PLINT>& slots, 
     symbol_colours.push_back(slots[s]);
     symbol_scales.push_back(1.0);
     symbol_numbers.push_back(1);
-    symbols.push_back("#(228)");
+    symbols.push_back(kMarker);
     texts.push_back(series[s].label.c_str());
     text_colours.push_back(15);
   }
@@ -58,6 +61,26 @@ void Legend(const std::vector<Series>& series, const std::vector<PLINT>& slots, 
            PLINT(texts.size()), opts.data(), 0.6, 0.75, 1.8, 0.0, text_colours.data(), texts.data(), nullptr, nullptr,
            nullptr, nullptr, colours.data(), styles.data(), widths.data(), symbol_colours.data(), symbol_scales.data(),
            symbol_numbers.data(), symbols.data());
+}
+
+// The right edge of the plot area (normalised page units, at most
+// `preferred`) that leaves room outside it for the legend Legend() draws:
+// offset and line sample 0.075 of the plot width, then the longest label at
+// text scale 0.6. Browsers draw the SVG's text in their sans-serif font, whose
+// characters average about 0.55 em; 0.75 of the character height per
+// character is a margin over that (PLplot's public API has no string metrics).
+PLFLT RightEdgeForLegend(const std::vector<Series>& series, PLFLT left, PLFLT preferred) {
+  std::size_t longest = 0;
+  for (const Series& s : series) longest = std::max(longest, s.label.size());
+  if (longest == 0) return preferred;
+  PLFLT x0, x1, y0, y1;
+  plgspa(&x0, &x1, &y0, &y1);  // the page in millimetres
+  PLFLT default_mm, char_mm;
+  plgchr(&default_mm, &char_mm);
+  const PLFLT text = 0.6 * char_mm * (0.75 * PLFLT(longest) + 3.0) / (x1 - x0);
+  const PLFLT right = (0.985 - text + 0.075 * left) / 1.075;
+  // A label longer than half the page is cut rather than the plot squeezed away.
+  return std::clamp(right, left + 0.45, preferred);
 }
 
 // Owns the temporary output file and one PLplot stream; PLplot aborts the
@@ -175,7 +198,7 @@ void LinePlot(const std::string& svg_path, const std::string& title, const std::
   plcol0(15);
   plschr(0, 0.85);
   pladv(0);
-  plvpor(0.1, 0.68, 0.11, 0.91);
+  plvpor(0.1, RightEdgeForLegend(series, 0.1, 0.68), 0.11, 0.91);
   plwind(x0, x1, y0, y1);
   plbox(log_x ? "bcnstgl" : "bcnstg", 0, 0, log_y ? "bcnstvgl" : "bcnstvg", 0, 0);
   pllab(xlabel.c_str(), ylabel.c_str(), title.c_str());
@@ -314,7 +337,8 @@ void PolarPlot(const std::string& svg_path, const std::string& title, const std:
   plcol0(15);
   plschr(0, 0.8);
   pladv(0);
-  plvpas(0.02, 0.7, 0.04, 0.92, 1.3 / 2);  // equal scales, no box: the grid is drawn below
+  // Equal scales, no box (the grid is drawn below); the left margin holds the -90 label.
+  plvpas(0.06, RightEdgeForLegend(series, 0.06, 0.7), 0.04, 0.92, 1.3 / 2);
   plwind(-rmax, rmax, -0.2 * rmax, 1.1 * rmax);
   pllab("", "", title.c_str());
   // Grid: rings (decades on a log radius, quarters otherwise), spokes every 15 degrees.
@@ -356,7 +380,7 @@ void PolarPlot(const std::string& svg_path, const std::string& title, const std:
     plcol0(c);
     plwidth(2.0);
     if (markers[s]) {
-      if (!x.empty()) plpoin(PLINT(x.size()), x.data(), y.data(), 4);
+      if (!x.empty()) plstring(PLINT(x.size()), x.data(), y.data(), kMarker);
     } else if (x.size() > 1) {
       plline(PLINT(x.size()), x.data(), y.data());
     }

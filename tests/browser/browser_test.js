@@ -127,6 +127,30 @@ function canvasInk(page) {
     const wide = await report.page.evaluate(() => Array.from(document.querySelectorAll('table')).filter(
       (t) => t.getBoundingClientRect().right > document.documentElement.clientWidth + 1).length);
     check(wide === 0, 'report: no table runs past the right edge');
+    // Every text of every SVG figure (titles, tick values, colour-bar and
+    // legend labels) lies inside the figure, as the browser lays it out.
+    const clipped = await report.page.evaluate(() => {
+      const out = [];
+      for (const img of document.querySelectorAll('img.plot')) {
+        const [head, body] = img.src.split(',');
+        const text = head.endsWith(';base64') ? atob(body) : decodeURIComponent(body);
+        const holder = document.createElement('div');
+        holder.style.cssText = 'position:absolute;left:0;top:0';
+        holder.innerHTML = text;
+        document.body.appendChild(holder);
+        const svg = holder.querySelector('svg');
+        const frame = svg.getBoundingClientRect();
+        for (const t of svg.querySelectorAll('text')) {
+          const b = t.getBoundingClientRect();
+          if (b.width === 0) continue;
+          if (b.left < frame.left - 1 || b.right > frame.right + 1 || b.top < frame.top - 1 || b.bottom > frame.bottom + 1)
+            out.push(`${img.alt}: "${t.textContent}" (${b.left.toFixed(0)}..${b.right.toFixed(0)} of ${frame.width.toFixed(0)})`);
+        }
+        holder.remove();
+      }
+      return out;
+    });
+    check(clipped.length === 0, 'report: no figure text runs past its figure\'s edge' + (clipped.length ? ': ' + clipped.join('; ') : ''));
     await report.page.waitForSelector('#brdf-explorer[data-ready="true"]', {timeout: 10000});
     for (const c of await canvasInk(report.page)) check(c.ink > 0.02, `report explorer ${c.id} is drawn`);
     await report.page.screenshot({path: path.join(work, 'report.png'), fullPage: true});
