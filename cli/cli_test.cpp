@@ -213,6 +213,38 @@ TEST(Cli, PlainFitOfApertureDataWarnsAndNamesTheInstrument) {
   EXPECT_LT(j["relative_error"]["max"].get<double>(), 1e-6);
 }
 
+// --threads means the same in every command: 0 is every core, a count
+// beyond the cores is capped with a note (the result unchanged), a negative
+// one is refused with the option named.
+TEST(Cli, ThreadCountsAreCappedWithANote) {
+  const fs::path dir = FreshDir("threads");
+  const std::string data = (dir / "data.csv").string();
+  ASSERT_EQ(Brdfkit("synth -m lambert+ggx -p lambert.albedo=0.2,ggx.alpha=0.2 --out " + data).code, 0);
+  const std::string fit = "fit --data " + data + " -m lambert+ggx --no-covariance --json --threads ";
+  const CliRun one = Brdfkit(fit + "1");
+  const CliRun many = Brdfkit(fit + "100000");
+  ASSERT_EQ(one.code, 0) << one.out;
+  ASSERT_EQ(many.code, 0) << many.out;
+  EXPECT_NE(many.out.find("--threads 100000: this machine offers"), std::string::npos) << many.out;
+  const auto a = nlohmann::json::parse(one.out.substr(one.out.find('{')));
+  const auto b = nlohmann::json::parse(many.out.substr(many.out.find('{')));
+  EXPECT_NEAR(a["params"]["ggx.alpha"].get<double>(), 0.2, 5e-3);  // a plain fit of aperture data
+  EXPECT_NEAR(b["params"]["ggx.alpha"].get<double>(), a["params"]["ggx.alpha"].get<double>(), 1e-9);
+  const std::string albedo = "albedo -m ggx --axes mu:4,alpha:3:0.2:1 --csv ";
+  const CliRun t1 = Brdfkit(albedo + (dir / "one.csv").string() + " --threads 1");
+  const CliRun tn = Brdfkit(albedo + (dir / "many.csv").string() + " --threads 100000");
+  ASSERT_EQ(t1.code, 0) << t1.out;
+  ASSERT_EQ(tn.code, 0) << tn.out;
+  EXPECT_NE(tn.out.find("this machine offers"), std::string::npos) << tn.out;
+  EXPECT_EQ(ReadText(dir / "one.csv"), ReadText(dir / "many.csv"));
+  for (const std::string& cmd : {fit + "-1", albedo + (dir / "bad.csv").string() + " --threads -1"}) {
+    const CliRun r = Brdfkit(cmd);
+    EXPECT_EQ(r.code, 2) << cmd;
+    EXPECT_NE(r.out.find("--threads -1: expected 0 (every core) or more"), std::string::npos) << r.out;
+  }
+  EXPECT_FALSE(fs::exists(dir / "bad.csv"));
+}
+
 // Scene messages: a misspelt top-level key is named as such (with the
 // nearest known key), and a relative path is shown as resolved.
 TEST(Cli, SceneMessagesNameTheKeyAndTheResolvedPath) {

@@ -3,7 +3,6 @@
 #include <cmath>
 #include <cstdio>
 #include <iostream>
-#include <memory>
 
 #include <tbb/global_control.h>
 
@@ -67,7 +66,7 @@ void RegisterAlbedo(CLI::App& app) {
   cmd->add_option("--slice", slice,
                   "BEGIN:END: only nodes BEGIN..END-1 of the first parameter axis, with the full axis's node values "
                   "(pieces of one table computed apart and joined along that axis)");
-  cmd->add_option("--threads", threads, "threads (default: all cores)")->check(CLI::PositiveNumber);
+  cmd->add_option("--threads", threads, "threads (default 0: every core; more than the cores are capped)");
   cmd->add_flag("--json", json, "print the tables as JSON on stdout");
   cmd->callback([] {
     const LoadedModel m = LoadModel(margs);
@@ -91,10 +90,8 @@ void RegisterAlbedo(CLI::App& app) {
       req.slice_begin = static_cast<std::size_t>(b);
       req.slice_end = static_cast<std::size_t>(e);
     }
-    std::unique_ptr<tbb::global_control> limit;
-    if (threads > 0)
-      limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism,
-                                                    static_cast<std::size_t>(threads));
+    const tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
+                                    static_cast<std::size_t>(ThreadCount(threads)));
     const validate::AlbedoTable t = validate::BuildAlbedoTable(m.model, m.params, req);
     const double accepted = std::max(accept_error, tolerance);
     const std::vector<validate::AlbedoMiss> misses = validate::EntriesAboveTolerance(t, accepted);

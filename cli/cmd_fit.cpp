@@ -187,7 +187,7 @@ void RegisterFit(CLI::App& app) {
   static std::string data, model, init, metric = "l2", loss = "none", solver = "dense_qr", instrument, out, trace,
                      trace_plot;
   static double max_theta = -1;
-  static int threads = 2, max_iter = 200, starts = 5, aperture_order = 0;
+  static int threads = 0, max_iter = 200, starts = 5, aperture_order = 0;
   static bool json = false, no_cov = false, ignore_sigma = false;
   cmd->add_option("--data,-d", data, "CSV table (theta_i,phi_i,theta_o,phi_o,f_r,f_g,f_b[,sigma_*]) or MERL .binary")
       ->required();
@@ -200,7 +200,7 @@ void RegisterFit(CLI::App& app) {
   cmd->add_option("--max-theta-deg", max_theta, "drop samples with theta_i or theta_o above this (default 80 for cosine)");
   cmd->add_option("--loss", loss, "robust loss: none, huber or cauchy, with optional :scale");
   cmd->add_option("--solver", solver, "linear solver: dense_qr, dense_normal_cholesky, iterative_schur or cgnr");
-  cmd->add_option("--threads", threads, "threads (default 2)");
+  cmd->add_option("--threads", threads, "threads (default 0: every core; more than the cores are capped)");
   cmd->add_option("--max-iterations", max_iter, "iterations of the final solve (default 200)");
   cmd->add_option("--starts", starts, "starts per roughness-like parameter (default 5)");
   cmd->add_flag("--no-covariance", no_cov, "skip the uncertainty computation");
@@ -222,11 +222,10 @@ void RegisterFit(CLI::App& app) {
     ParseLoss(loss, o);
     if (max_theta != -1 && !(max_theta > 0 && max_theta <= 90))
       throw UsageError("--max-theta-deg must be in (0, 90]");
-    if (threads < 1) throw UsageError("--threads must be at least 1");
     if (max_iter < 1) throw UsageError("--max-iterations must be at least 1");
     if (starts < 1) throw UsageError("--starts must be at least 1");
     o.max_theta_deg = max_theta;
-    o.num_threads = threads;
+    o.num_threads = ThreadCount(threads);
     o.max_iterations = max_iter;
     o.starts_per_param = starts;
     o.covariance = !no_cov;

@@ -1,9 +1,25 @@
 #include "cli/common.h"
 
+#include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <sstream>
 
+#include <tbb/info.h>
+
 namespace brdfkit::cli {
+
+int ThreadCount(int requested) {
+  if (requested < 0) throw UsageError("--threads " + std::to_string(requested) + ": expected 0 (every core) or more");
+  const int cores = std::max(1, tbb::info::default_concurrency());
+  if (requested == 0) return cores;
+  if (requested > cores) {
+    std::fprintf(stderr, "brdfkit: note: --threads %d: this machine offers %d cores; using %d\n", requested, cores,
+                 cores);
+    return cores;
+  }
+  return requested;
+}
 
 void AddModelOptions(CLI::App* cmd, ModelArgs& args, bool required) {
   auto* opt = cmd->add_option("--model,-m", args.model,

@@ -28,6 +28,11 @@ class ResultError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+// The thread count of `--threads N`, the same for every command: 0 means
+// every core TBB sees (affinity and cgroup limits included); more than that
+// is capped at it, with a note on stderr; a negative count is a UsageError.
+int ThreadCount(int requested);
+
 struct ModelArgs {
   std::string model;
   std::string params;

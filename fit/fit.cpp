@@ -841,7 +841,11 @@ std::vector<double> ResidualBlocks::ToInternal(const std::vector<double>& params
   return impl_->engine.ToInternal(params);
 }
 
-Result Fit(const Model& model, const Dataset& data, const Options& o) {
+Result Fit(const Model& model, const Dataset& data, const Options& options) {
+  // More worker threads than hardware threads only cost memory and start-up
+  // (a count such as 100000 would exhaust the process's thread limit).
+  Options o = options;
+  o.num_threads = std::clamp(o.num_threads, 1, int(std::max(1u, std::thread::hardware_concurrency())));
   using Clock = std::chrono::steady_clock;
   const auto t0 = Clock::now();
   auto elapsed = [&] { return std::chrono::duration<double>(Clock::now() - t0).count(); };

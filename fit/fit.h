@@ -119,7 +119,7 @@ struct Options {
   double loss_scale = 0;
   bool use_sigma = true;  // weight by 1/sigma when the data has it
   LinearSolver solver = LinearSolver::kDenseQr;
-  int num_threads = 2;
+  int num_threads = 2;  // capped at the hardware threads
   int max_iterations = 200;
   double function_tolerance = 1e-10;
   double gradient_tolerance = 1e-16;
