@@ -19,8 +19,6 @@ import sys
 import tempfile
 import time
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
-from brdfkit import batch  # noqa: E402
 
 
 def timed(f):
@@ -31,6 +29,10 @@ def timed(f):
 
 def main():
     exe = os.path.abspath(sys.argv[1])
+    # The package built next to the tool (BUILD/python), as the tests use it.
+    sys.path.insert(0, os.path.join(os.path.dirname(exe), "python"))
+    global batch
+    from brdfkit import batch
     work = sys.argv[2] if len(sys.argv) > 2 else tempfile.mkdtemp(prefix="brdfkit-batch-bench-")
     os.makedirs(os.path.join(work, "tables"), exist_ok=True)
     for i, alpha in enumerate((0.03, 0.05, 0.1, 0.2, 0.3, 0.5)):

@@ -33,9 +33,9 @@ json MaterialKey(const Scene& scene, const std::string& name, const std::map<std
     case MaterialSpec::Kind::kAnalytic:
       j = {{"model", m.model}, {"params", m.params}};
       break;
-    case MaterialSpec::Kind::kMerl:
+    case MaterialSpec::Kind::kMeasured:
     case MaterialSpec::Kind::kTable:
-      j = {{"file", FileHash(m.path)}, {"kind", m.kind == MaterialSpec::Kind::kMerl ? "merl" : "table"}};
+      j = {{"file", FileHash(m.path)}, {"kind", m.kind == MaterialSpec::Kind::kMeasured ? m.model : "table"}};
       break;
     case MaterialSpec::Kind::kFit:
       j = {{"fit", keys.at(m.fit_task)}};

@@ -31,8 +31,8 @@ LoadedModel MaterialModel(const MaterialSpec& m, const RunContext& ctx) {
       LoadedModel out{Model::Parse(m.model), m.params};
       return out;
     }
-    case MaterialSpec::Kind::kMerl: {
-      LoadedModel out{Model::Parse("merl", Settings{{"path", m.path}}), {}};
+    case MaterialSpec::Kind::kMeasured: {
+      LoadedModel out{Model::Parse(m.model, Settings{{"path", m.path}}), {}};
       out.params = out.model.Info().Defaults();
       return out;
     }
@@ -53,7 +53,7 @@ constexpr double kDegree = kPi / 180;
 
 std::string Describe(const MaterialSpec& m, const LoadedModel& lm) {
   switch (m.kind) {
-    case MaterialSpec::Kind::kMerl: return "MERL file " + m.path;
+    case MaterialSpec::Kind::kMeasured: return m.model + " file " + m.path;
     case MaterialSpec::Kind::kFit: return "fit '" + m.fit_task + "': " + lm.model.Spec() + " (" + FormatParams(lm.model.Info(), lm.params) + ")";
     default: return lm.model.Spec() + " (" + FormatParams(lm.model.Info(), lm.params) + ")";
   }

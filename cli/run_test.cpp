@@ -192,6 +192,47 @@ TEST(Run, AMerlMaterialIsFittedBack) {
   EXPECT_GT(fit.at("missing").get<long long>(), 1000000) << "the skipped bins are counted as missing";
 }
 
+// Every measured format enters a scene as a "measured" material, chosen by
+// the file's extension and checked against its header: an ASTM table and a
+// UTIA file tabulated from a known model are fitted back to it, and an RGL
+// file is checked and measured like any BRDF.
+TEST(Run, MeasuredMaterialsOfEveryFormat) {
+  const fs::path d = FreshDir("measured");
+  const std::string model = "-m lambert+ggx -p lambert.albedo=0.2,ggx.alpha=0.3,ggx.f0=0.04 ";
+  for (const char* file : {"scan.astm", "scan.utia", "scan.bsdf"}) {
+    const CliRun c = Brdfkit("convert " + model + (d / file).string());
+    ASSERT_EQ(c.code, 0) << file << "\n" << c.out;
+  }
+  WriteText(d / "scene.json", R"({"materials": {"astm": {"measured": "scan.astm"}, "utia": {"measured": "scan.utia"},
+                                              "rgl": {"measured": "scan.bsdf"}},
+    "tasks": [{"name": "fit_astm", "type": "fit", "data": "astm", "model": "lambert+ggx", "starts": 2},
+              {"name": "fit_utia", "type": "fit", "data": "utia", "model": "lambert+ggx", "starts": 2},
+              {"name": "check_rgl", "type": "check", "materials": ["rgl"], "sampling": false},
+              {"name": "measure_rgl", "type": "synth", "material": "rgl", "instrument": "gonio"}],
+    "instruments": {"gonio": {"type": "gonioreflectometer"}}})");
+  const CliRun r = Brdfkit("run " + (d / "scene.json").string() + " --out " + (d / "out").string() + " --quiet");
+  ASSERT_EQ(r.code, 0) << r.out;
+  for (const char* task : {"fit_astm", "fit_utia"}) {
+    const json fit = json::parse(ReadText(d / "out" / task / "fit.json"));
+    // The tables hold the model at their nodes; the formats' own interpolation
+    // between them is what the fit sees.
+    EXPECT_NEAR(fit.at("params").at("ggx.alpha").get<double>(), 0.3, 0.03) << task;
+    EXPECT_NEAR(fit.at("params").at("lambert.albedo")[1].get<double>(), 0.2, 0.02) << task;
+  }
+  const json check = json::parse(ReadText(d / "out" / "check_rgl" / "check.json"));
+  EXPECT_EQ(check[0].at("model").get<std::string>(), "rgl");
+  EXPECT_TRUE(fs::exists(d / "out" / "measure_rgl" / "data.csv"));
+  // A file whose header disagrees with its name is named at its key.
+  WriteText(d / "fake.bsdf", "not a tensor file");
+  WriteText(d / "bad.json", R"({"materials": {"m": {"measured": "fake.bsdf"}},
+    "tasks": [{"name": "c", "type": "check", "materials": ["m"]}]})");
+  const CliRun b = Brdfkit("run " + (d / "bad.json").string() + " --out " + (d / "bad-out").string());
+  EXPECT_EQ(b.code, 2);
+  EXPECT_NE(b.out.find("materials.m.measured:"), std::string::npos) << b.out;
+  EXPECT_NE(b.out.find("does not start with \"tensor_file\""), std::string::npos) << b.out;
+  EXPECT_FALSE(fs::exists(d / "bad-out"));
+}
+
 // Each malformed scene: exit 2, a message naming the file and the key path
 // (or line), and no output folder: nothing started.
 TEST(Run, MalformedScenesAreRejectedBeforeAnyWork) {

@@ -13,6 +13,7 @@
 #include "brdf/merl.h"
 #include "brdf/params.h"
 #include "fit/fit.h"
+#include "formats/convert.h"
 #include "validate/albedo.h"
 #include "validate/integrators.h"
 
@@ -224,23 +225,33 @@ namespace {
 MaterialSpec ParseMaterial(SceneReader& r, const Scene& s, const std::string& name, const std::string& path) {
   MaterialSpec m;
   m.name = name;
-  const int kinds = int(r.Has("model")) + int(r.Has("merl")) + int(r.Has("table")) + int(r.Has("fit"));
-  if (kinds != 1) Fail(s.origin, path, "give exactly one of \"model\", \"merl\", \"table\" or \"fit\"");
+  const int kinds = int(r.Has("model")) + int(r.Has("measured")) + int(r.Has("merl")) + int(r.Has("table")) +
+                    int(r.Has("fit"));
+  if (kinds != 1)
+    Fail(s.origin, path, "give exactly one of \"model\", \"measured\", \"merl\", \"table\" or \"fit\"");
   if (r.Has("model")) {
     m.kind = MaterialSpec::Kind::kAnalytic;
     const Model model = ParseModelAt(r, "model");
     if (!model.Info().settings.empty())
-      r.FailKey("model", "'" + model.Spec() + "' reads a file: use \"merl\": FILE for measured materials");
+      r.FailKey("model", "'" + model.Spec() + "' reads a file: use \"measured\": FILE for measured materials");
     m.model = model.Spec();
     m.params = ReadParams(r, "params", model.Info());
-  } else if (r.Has("merl")) {
-    m.kind = MaterialSpec::Kind::kMerl;
-    m.path = ExistingFile(s.base_dir, r.String("merl"), s.origin, r.Path("merl"));
-    // The header and the size are checked now, not after other work.
+  } else if (r.Has("measured") || r.Has("merl")) {
+    // "merl" is "measured" restricted to MERL binaries.
+    const std::string key = r.Has("measured") ? "measured" : "merl";
+    m.kind = MaterialSpec::Kind::kMeasured;
+    m.path = ExistingFile(s.base_dir, r.String(key), s.origin, r.Path(key));
+    // The format and the whole file are checked now, not after other work.
     try {
-      (void)MerlTable::Read(m.path);
+      const formats::Format f = key == "merl" ? formats::Format::kMerl : formats::DetectFormat(m.path);
+      if (f == formats::Format::kCsv) {
+        m.kind = MaterialSpec::Kind::kTable;
+      } else {
+        m.model = formats::FormatName(f);  // the measured model of each format has its name
+        (void)Model::Parse(m.model, Settings{{"path", m.path}});
+      }
     } catch (const std::exception& e) {
-      r.FailKey("merl", e.what());
+      r.FailKey(key, e.what());
     }
   } else if (r.Has("table")) {
     m.kind = MaterialSpec::Kind::kTable;
@@ -375,8 +386,8 @@ void FitTask::Parse(SceneReader& r, const Scene& s) {
     t.data_task = data;
   } else if (s.materials.count(data)) {
     const MaterialSpec& m = s.materials.at(data);
-    if (m.kind != MaterialSpec::Kind::kMerl && m.kind != MaterialSpec::Kind::kTable)
-      r.FailKey("data", "material '" + data + "' is not measured data (use a merl or table material, or a synth task)");
+    if (m.kind != MaterialSpec::Kind::kMeasured && m.kind != MaterialSpec::Kind::kTable)
+      r.FailKey("data", "material '" + data + "' is not measured data (use a measured or table material, or a synth task)");
     t.data_material = data;
   } else {
     r.FailKey("data", "'" + data + "' is neither a synth task defined before this one nor a measured material");

@@ -21,12 +21,12 @@
 namespace brdfkit::cli {
 
 struct MaterialSpec {
-  enum class Kind { kAnalytic, kMerl, kTable, kFit };
+  enum class Kind { kAnalytic, kMeasured, kTable, kFit };
   std::string name;
   Kind kind = Kind::kAnalytic;
-  std::string model;          // analytic: model specification ("lambert+ggx")
+  std::string model;          // analytic: model specification ("lambert+ggx"); measured: merl, rgl, utia or astm
   std::vector<double> params; // analytic: packed parameter values
-  std::string path;           // merl / table: the file (resolved against the scene's folder)
+  std::string path;           // measured / table: the file (resolved against the scene's folder)
   std::string fit_task;       // fit: the task whose result this material is
 };
 
