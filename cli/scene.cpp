@@ -214,7 +214,7 @@ std::vector<std::string> Scene::Dependencies(const TaskSpec& task) const {
     auto it = materials.find(m);
     if (it != materials.end() && it->second.kind == MaterialSpec::Kind::kFit) add(it->second.fit_task);
   };
-  for (const std::string& t : std::visit([](const auto& o) { return o.Tasks(); }, task.options)) add(t);
+  for (const std::string& t : task.Tasks()) add(t);
   for (const std::string& m : task.Materials()) material_dep(m);
   return out;
 }

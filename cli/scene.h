@@ -150,6 +150,9 @@ struct TaskSpec {
   std::vector<std::string> Instruments() const {
     return std::visit([](const auto& o) { return o.Instruments(); }, options);
   }
+  std::vector<std::string> Tasks() const {
+    return std::visit([](const auto& o) { return o.Tasks(); }, options);
+  }
 };
 
 // Every name a scene may use where the schema (examples/scene.schema.json)
