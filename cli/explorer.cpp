@@ -75,7 +75,8 @@ json MaterialJson(const ExplorerMaterial& m, int index) {
         for (double po : kLobePhi) lobe.Add(b->Eval(p, wi, Dir(to, po)));
       // E(wo) at wo = wi's direction (by reciprocity also the albedo for light from there).
       const Eigen::Vector3d wo = Dir(std::min(ti, 89.5), pi);
-      const validate::AlbedoValue e = validate::HalfVectorAlbedo(*b, p, wo, shape);
+      const validate::AlbedoValue e =
+          validate::DirectionalAlbedo(*b, p, wo, validate::Method::kAdaptive, validate::AlbedoQuadratureOptions{}.Integrate(shape));
       albedo.Add(Rgb<double>(e.value[0], e.value[1], e.value[2]));
     }
   for (int j = 0; j < 90; ++j)

@@ -16,8 +16,10 @@
 //  4. rgb at the uniform N x M nodes s of each slice: wm = V(s), the warp of
 //     the float32 vndf as the reader builds it, wo the reflection of wi
 //     about wm, value = f(wi, wo) cos(theta_o) 4 sigma(wi) / D(wm) with
-//     sigma and D the reader's bilinear values (0 where wo is below the
-//     horizon); luminance is the Rec. 709 luminance of rgb.
+//     sigma and D the reader's bilinear values; below the horizon the value
+//     continues oddly (f at the mirror image of wo times the negative
+//     cosine), so that interpolation crosses zero at the horizon;
+//     luminance is the Rec. 709 luminance of rgb, clipped at 0.
 // At every node the reconstruction then returns f cos(theta_o) to float32
 // rounding; between nodes its error is that of the interpolation, measured
 // by RglAccuracy.

@@ -33,18 +33,6 @@
 
 namespace brdfkit::validate {
 
-namespace {
-
-constexpr double kHalfPi = 0.5 * kPi;
-
-// Breakpoints width * 4^k (k >= -1) below `limit`.
-void GeometricBreaks(double width, double start, double limit, std::vector<double>& out) {
-  for (double x = width / 4; x < limit; x *= 4)
-    if (x > start) out.push_back(x);
-}
-
-}  // namespace
-
 Eigen::Array3d AdaptiveGaussKronrod(const std::function<Eigen::Array3d(double)>& f, double a, double b,
                                     std::vector<double> breakpoints, double abs_tolerance, int max_subdivisions,
                                     double* error, std::int64_t* evals) {
@@ -60,87 +48,6 @@ Eigen::Array3d AdaptiveGaussKronrod(const std::function<Eigen::Array3d(double)>&
   return r.value;
 }
 
-LobeShape EstimateLobeShape(const Bxdf<double>& bxdf, const double* p) {
-  LobeShape shape;
-  // The model's declared lobe width; a model without a glossy lobe is broad.
-  const LobeWidth lobe = bxdf.Width(p);
-  shape.width = lobe.Any() ? std::min(1.0, lobe.Min()) : 1.0;
-  // Mirror symmetry about the xz plane, tested at fixed pairs spread over the
-  // hemisphere with wo in the plane.
-  shape.mirror_symmetric = true;
-  for (int k = 0; k < 24 && shape.mirror_symmetric; ++k) {
-    const double to = 0.07 + 1.45 * ((k * 7) % 24) / 24.0, ti = 0.05 + 1.5 * ((k * 11) % 24) / 24.0;
-    const double phi = 0.3 + 2.6 * ((k * 5) % 24) / 24.0;
-    const Eigen::Vector3d wo(std::sin(to), 0, std::cos(to));
-    const Eigen::Vector3d wi(std::sin(ti) * std::cos(phi), std::sin(ti) * std::sin(phi), std::cos(ti));
-    const Eigen::Vector3d wi_m(wi.x(), -wi.y(), wi.z());
-    const Eigen::Array3d a = bxdf.Eval(p, wi, wo), b = bxdf.Eval(p, wi_m, wo);
-    const double scale = std::max(a.abs().maxCoeff(), b.abs().maxCoeff());
-    if ((a - b).abs().maxCoeff() > 1e-12 * scale) shape.mirror_symmetric = false;
-  }
-  return shape;
-}
-
-AlbedoValue HalfVectorAlbedo(const Bxdf<double>& bxdf, const double* p, const Eigen::Vector3d& wo,
-                             const LobeShape& shape, const AlbedoQuadratureOptions& o) {
-  AlbedoValue out;
-  const double mu_o = wo.z();
-  if (!(mu_o > 0)) return out;
-  const double sin_o = std::sqrt(std::max(0.0, wo.x() * wo.x() + wo.y() * wo.y()));
-  const double phi_o = sin_o > 0 ? std::atan2(wo.y(), wo.x()) : 0.0;
-  const bool half = shape.mirror_symmetric && wo.y() == 0;
-  const double w = std::max(shape.width, 1e-12);
-
-  // theta_max(phi): wi.z = mu_o cos(2 theta) + sin_o cos(phi) sin(2 theta) > 0.
-  const auto theta_max = [&](double phi) { return 0.5 * (kHalfPi + std::atan2(sin_o * std::cos(phi), mu_o)); };
-
-  std::int64_t evals = 0;
-  double inner_error_sum = 0;
-  const double phi_end = half ? kPi : 2 * kPi;
-  // The estimate factor (outer + phi_end max inner) stays below the
-  // tolerance: half of it to each level.
-  const double factor = half ? 2.0 : 1.0;
-  const double inner_tol = o.abs_tolerance / (2 * factor * phi_end);
-  const auto inner = [&](double phi) -> Eigen::Array3d {
-    const double tmax = theta_max(phi);
-    const double cp = std::cos(phi);
-    const double ca = std::cos(phi + phi_o), sa = std::sin(phi + phi_o);
-    const auto g = [&](double t) -> Eigen::Array3d {
-      const double st = std::sin(t), ct = std::cos(t);
-      const Eigen::Vector3d wm(st * ca, st * sa, ct);
-      const double o_dot_m = sin_o * st * cp + mu_o * ct;
-      // wi.z from the double-angle form: no cancellation at grazing.
-      const double wi_z = mu_o * std::cos(2 * t) + sin_o * cp * std::sin(2 * t);
-      if (!(wi_z > 0) || !(o_dot_m > 0)) return Eigen::Array3d::Zero();
-      Eigen::Vector3d wi = 2 * o_dot_m * wm - wo;
-      wi.z() = wi_z;
-      return bxdf.Eval(p, wi, wo) * (wi_z * 4 * o_dot_m * st);
-    };
-    std::vector<double> breaks;
-    GeometricBreaks(w, 0, tmax, breaks);
-    double err = 0;
-    const int subdivisions = evals > o.max_evals ? 0 : o.max_subdivisions;
-    const Eigen::Array3d v = AdaptiveGaussKronrod(g, 0, tmax, breaks, inner_tol, subdivisions, &err, &evals);
-    inner_error_sum = std::max(inner_error_sum, err);
-    return v;
-  };
-  // Where the horizon cuts a narrow lobe: phi = pi/2 + asin(s) with the cut
-  // at theta ~ mu_o / (2 s), s from mu_o / w upwards.
-  std::vector<double> breaks{kHalfPi};
-  if (!half) breaks.push_back(1.5 * kPi);
-  for (double s = mu_o / w / 16; s < 1; s *= 4) {
-    breaks.push_back(kHalfPi + std::asin(s));
-    if (!half) breaks.push_back(1.5 * kPi - std::asin(s));
-  }
-  double outer_err = 0;
-  Eigen::Array3d v = AdaptiveGaussKronrod(inner, 0, phi_end, breaks, o.abs_tolerance / (2 * factor), o.max_subdivisions,
-                                          &outer_err, &evals);
-  out.value = v * factor;
-  out.error = Eigen::Array3d::Constant(factor * (outer_err + phi_end * inner_error_sum));
-  out.evals = evals;
-  return out;
-}
-
 namespace {
 // Below 1e-15 the direction wo itself (sin_o = 1 exactly) carries no more information.
 double GrazingMu(const LobeShape& shape) { return std::max(1e-15, std::min(kGrazingMu, 1e-9 * shape.width)); }
@@ -151,7 +58,7 @@ AlbedoValue AlbedoAtMu(const Bxdf<double>& bxdf, const double* p, double mu, con
   mu = std::max(mu, GrazingMu(shape));
   mu = std::min(mu, 1.0);
   const Eigen::Vector3d wo(std::sqrt(std::max(0.0, (1 - mu) * (1 + mu))), 0, mu);
-  return HalfVectorAlbedo(bxdf, p, wo, shape, o);
+  return DirectionalAlbedo(bxdf, p, wo, Method::kAdaptive, o.Integrate(shape));
 }
 
 namespace {

@@ -8,13 +8,12 @@
 //   and with Fresnel: f_ms * F_avg^2 E_avg / (1 - F_avg (1 - E_avg)),
 //   F_avg = 2 int_0^1 F(mu) mu dmu.
 //
-// Quadrature. E(wo) = int f_r(wi, wo) cos(theta_i) dwi is integrated over
-// the half vector wm = normalize(wi + wo), dwi = 4 (wo.wm) dwm (Walter 2007
-// eq. 14): a specular lobe of any width sits at wm = z for every wo, and the
-// horizon wi.z = 0 is the exact curve theta_m = theta_max(phi_m), so the
-// integrand is smooth on the integration domain. Both angles are integrated
-// by adaptive Gauss-Kronrod (7/15) with breakpoints at multiples of the lobe
-// width; the error estimate |K15 - G7| is conservative for smooth integrands.
+// Quadrature. E(wo) = int f_r(wi, wo) cos(theta_i) dwi is the adaptive rule
+// of validate/integrators.h (DirectionalAlbedo, Method::kAdaptive): over the
+// half vector for a model with a glossy lobe, where the lobe sits at wm = z
+// for every wo and the horizon is the exact end of every inner range, and
+// in (phi, cos theta) for one without; nested adaptive Gauss-Kronrod (7/15)
+// whose QUADPACK-scaled error estimate is conservative for smooth integrands.
 //
 // Grazing limit. f_r = 0 at mu = 0 by convention, but E(mu) has a limit as
 // mu -> 0 (GGX alpha = 1: E(mu) = 1 - mu ln(1 + 1/mu) -> 1). The entry at
@@ -31,6 +30,7 @@
 #include <vector>
 
 #include "brdf/model.h"
+#include "validate/integrators.h"
 
 namespace brdfkit::validate {
 
@@ -46,27 +46,20 @@ struct AlbedoQuadratureOptions {
   // vector of two nearly opposite tangential components) is above the
   // tolerance and refinement cannot converge; the error estimate says so.
   std::int64_t max_evals = 1000000;
+  // The same as options of the adaptive rule of validate/integrators.h.
+  IntegrateOptions Integrate(const LobeShape& shape) const {
+    IntegrateOptions o;
+    o.budget = max_evals;
+    o.abs_tolerance = abs_tolerance;
+    o.rel_tolerance = 0;
+    o.max_subdivisions = max_subdivisions;
+    o.shape = shape;
+    return o;
+  }
 };
 
-struct AlbedoValue {
-  Eigen::Array3d value = Eigen::Array3d::Zero();
-  Eigen::Array3d error = Eigen::Array3d::Zero();  // estimate, per channel
-  std::int64_t evals = 0;
-};
-
-// Facts about a model at one parameter point that steer the quadrature.
-struct LobeShape {
-  double width = 1.0;            // angular width of the narrowest glossy lobe in wm, radians (about alpha)
-  bool mirror_symmetric = true;  // f(wi, wo) unchanged by reflecting both about the xz plane
-};
-
-// Width from the model's declared lobe width (Bxdf::Width; 1 when it has
-// no glossy lobe), mirror symmetry tested on fixed direction pairs.
-LobeShape EstimateLobeShape(const Bxdf<double>& bxdf, const double* params);
-
-// E(wo) per channel, wo a unit vector with wo.z > 0.
-AlbedoValue HalfVectorAlbedo(const Bxdf<double>& bxdf, const double* params, const Eigen::Vector3d& wo,
-                             const LobeShape& shape, const AlbedoQuadratureOptions& options = {});
+// One directional albedo: value and error estimate per channel, evaluations.
+using AlbedoValue = Estimate;
 
 // E at mu (phi_o = 0); mu <= kGrazingMu gives the grazing limit E(kGrazingMu).
 AlbedoValue AlbedoAtMu(const Bxdf<double>& bxdf, const double* params, double mu, const LobeShape& shape,

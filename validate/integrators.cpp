@@ -35,11 +35,13 @@ struct Problem {
   double width_y = 0;                                // along y, for a peak at the normal
   Vector3d cut = Vector3d::Zero();                   // g = 0 where cut.w <= 0 (zero: none)
   double lobe_solid_angle = 0;                       // solid angle holding most of the peak's mass
-  // Adaptive rule: the BRDF case works in half-vector space.
+  // Adaptive rule: a BRDF with a glossy lobe is integrated over the half
+  // vector, one without in (phi, cos theta).
   const Bxdf<double>* bxdf = nullptr;
   const double* params = nullptr;
   Vector3d wo = Vector3d::UnitZ();
-  double alpha_x = 0, alpha_y = 0;
+  bool lobe = false;
+  LobeShape shape;
 };
 
 double Seconds(std::chrono::steady_clock::time_point t0) {
@@ -352,19 +354,6 @@ struct EndMap {
   }
 };
 
-// Roots of a2 x^2 + a1 x + a0 with a2 > 0 (numerically stable form); false
-// when there are no real roots.
-bool QuadraticRoots(double a2, double a1, double a0, double disc, double& lo, double& hi) {
-  if (!(disc > 0) || !(a2 > 0)) return false;
-  const double sq = std::sqrt(disc);
-  const double q = -0.5 * (a1 + std::copysign(sq, a1));
-  if (q == 0) return false;
-  const double r1 = q / a2, r2 = a0 / q;
-  lo = std::min(r1, r2);
-  hi = std::max(r1, r2);
-  return hi > lo;
-}
-
 // Chart of the upper hemisphere by slopes: direction (p, 1) / |(p, 1)| with
 // p = pc + X a + Y b; dw = |a x b| dX dY / (1 + |p|^2)^(3/2).
 struct SlopeChart {
@@ -380,43 +369,27 @@ struct SlopeChart {
   }
 };
 
-// Coordinate along one axis of the slope chart. kTan: x = s tan(t), which
-// turns a GGX lobe of unit width into a trigonometric polynomial (its slope
+// Coordinate along one axis of the slope chart: x = s tan(t), which turns a
+// GGX-like peak of unit width into a trigonometric polynomial (its slope
 // density (s^2 + x^2)^-2 dx becomes cos^2(t) dt / s^3) and reaches infinity
-// at t = +-pi/2; used for a single lobe. kAsinh: x = sinh(t), unit
-// resolution at the lobe and logarithmic reach, so a second, wider component
-// (a diffuse lobe in half-vector space) at slopes ~ 1/alpha is still seen.
-// Both are composed with EndMap on short ranges to smooth end points.
-enum class Warp { kTan, kAsinh };
-
+// at t = +-pi/2, composed with EndMap to smooth end points.
 struct AxisMap {
-  Warp warp;
   double s;
   EndMap end;
-  bool smooth;
-  AxisMap(Warp w, double scale, double lo, double hi)
-      : warp(w), s(scale), end(To(w, scale, lo), To(w, scale, hi)), smooth(true) {
-    smooth = warp == Warp::kTan || end.half < 2.0;
-  }
-  static double To(Warp w, double s, double x) { return w == Warp::kTan ? std::atan(x / s) : std::asinh(x / s); }
+  AxisMap(double scale, double lo, double hi) : s(scale), end(std::atan(lo / scale), std::atan(hi / scale)) {}
   // x and dx/dsigma at sigma.
   double Map(double sigma, double& jac) const {
-    const double t = smooth ? end(sigma) : end.mid + end.half * sigma;
-    const double dt = smooth ? end.Derivative(sigma) : end.half;
-    if (warp == Warp::kTan) {
-      const double c = std::cos(t);
-      jac = s * dt / (c * c);
-      return s * std::tan(t);
-    }
-    jac = s * std::cosh(t) * dt;
-    return s * std::sinh(t);
+    const double t = end(sigma);
+    const double c = std::cos(t);
+    jac = s * end.Derivative(sigma) / (c * c);
+    return s * std::tan(t);
   }
-  // Break point at the lobe centre x = 0 when it is well inside the range.
+  // Break point at the peak's centre x = 0 when it is well inside the range.
   std::vector<double> Breaks() const {
     const double lo = end.mid - end.half, hi = end.mid + end.half;
     const double margin = 0.05 * (hi - lo);
     if (!(lo + margin < 0.0 && 0.0 < hi - margin)) return {};
-    return {smooth ? end.Inverse(0.0) : -end.mid / end.half};
+    return {end.Inverse(0.0)};
   }
 };
 
@@ -438,11 +411,11 @@ struct Rect {
 // over range_x(Y) (false: empty), mapped onto sigma_x in [-1, 1], so the
 // valid region is always the full square and the integrand is smooth in it.
 template <typename RangeX, typename G>
-AdaptiveResult AdaptiveSlope(const SlopeChart& chart, Warp warp, double y_lo, double y_hi, RangeX&& range_x, G&& g,
+AdaptiveResult AdaptiveSlope(const SlopeChart& chart, double y_lo, double y_hi, RangeX&& range_x, G&& g,
                              const IntegrateOptions& o) {
   AdaptiveResult out;
   if (!(y_hi > y_lo)) return out;
-  const AxisMap my(warp, 1.0, y_lo, y_hi);
+  const AxisMap my(1.0, y_lo, y_hi);
   std::int64_t evals = 0;
   const auto& nodes = kGk15.x;
   const auto& wk = kGk15.wk;
@@ -456,8 +429,7 @@ AdaptiveResult AdaptiveSlope(const SlopeChart& chart, Warp warp, double y_lo, do
       const double y = my.Map(cy + hy * nodes[i], jy);
       double x_lo, x_hi;
       const bool row = jy > 0 && std::isfinite(y) && range_x(y, x_lo, x_hi);
-      const AxisMap mx(warp, warp == Warp::kTan ? std::sqrt(1.0 + y * y) : 1.0, row ? x_lo : 0.0,
-                       row ? x_hi : 1.0);
+      const AxisMap mx(std::sqrt(1.0 + y * y), row ? x_lo : 0.0, row ? x_hi : 1.0);
       for (int j = 0; j < 15; ++j) {
         f[i][j] = Array3d::Zero();
         ++evals;
@@ -544,53 +516,100 @@ AdaptiveResult AdaptiveSlope(const SlopeChart& chart, Warp warp, double y_lo, do
   return out;
 }
 
-// Directional albedo in half-vector space (Walter 2007 eq. 14: dwi = 4 |wo.h| dwh):
-// the slopes of h are stretched by the roughness (ax, ay), so a lobe of any
-// width covers a unit region, and wi stays above the horizon exactly inside
-// an ellipse of the slope plane,
-//   mu |p|^2 - 2 wo_xy . p - mu < 0   (from wi.z = 2 (wo.h) h.z - mu > 0),
-// whose chords give the inner ranges.
-AdaptiveResult AdaptiveHalfVector(const Bxdf<double>& bxdf, const double* params, const Vector3d& wo, double ax,
-                                  double ay, const IntegrateOptions& o) {
-  const double mu = wo.z();
-  const Eigen::Vector2d wxy(wo.x(), wo.y());
-  // Inner axis along the ellipse's normal at the point nearest the lobe, so
-  // the boundary crosses inner lines at a steep angle even at grazing wo.
-  Eigen::Vector2d n(ax * wo.x(), ay * wo.y());
-  n = n.norm() > 1e-300 ? Eigen::Vector2d(n / n.norm()) : Eigen::Vector2d(1, 0);
-  const Eigen::Vector2d m(-n.y(), n.x());
-  SlopeChart chart;
-  chart.a = Eigen::Vector2d(ax * n.x(), ay * n.y());
-  chart.b = Eigen::Vector2d(ax * m.x(), ay * m.y());
-  const Eigen::Vector2d& a = chart.a;
-  const Eigen::Vector2d& b = chart.b;
-  // For fixed Y: a2 X^2 + a1 X + a0 < 0 with the coefficients below.
-  const double a2 = mu * a.squaredNorm();
-  const double beta0 = -wxy.dot(a), beta1 = mu * a.dot(b);
-  const double gamma2 = mu * b.squaredNorm(), gamma1 = -2.0 * wxy.dot(b), gamma0 = -mu;
-  // Discriminant / 4 = q2 Y^2 + q1 Y + q0, q2 = -mu^2 (a x b)^2 < 0.
-  const double cross = chart.Jacobian();
-  const double q2 = -mu * mu * cross * cross;
-  const double q1 = 2.0 * beta0 * beta1 - a2 * gamma1;
-  const double q0 = beta0 * beta0 - a2 * gamma0;
-  double y_lo, y_hi;
-  if (!QuadraticRoots(-q2, -q1, -q0, q1 * q1 - 4.0 * q2 * q0, y_lo, y_hi)) return {};
-  auto range_x = [=](double y, double& lo, double& hi) {
-    const double a1 = 2.0 * (beta0 + beta1 * y);
-    const double a0 = gamma2 * y * y + gamma1 * y + gamma0;
-    const double disc4 = q2 * y * y + q1 * y + q0;
-    return QuadraticRoots(a2, a1, a0, 4.0 * disc4, lo, hi);
+// Breakpoints width * 4^k (k >= -1) in (start, limit).
+void GeometricBreaks(double width, double start, double limit, std::vector<double>& out) {
+  for (double x = width / 4; x < limit; x *= 4)
+    if (x > start) out.push_back(x);
+}
+
+// Directional albedo over the half vector wm = (theta_m, phi_m), dwi = 4
+// (wo.wm) dwm (Walter 2007 eq. 14): a specular lobe of any width sits at
+// wm = z for every wo, and the horizon wi.z = 0 is the exact curve
+// theta_m = theta_max(phi_m), the end of every inner range, so the
+// integrand is smooth on the integration domain. Both angles by globally
+// adaptive Gauss-Kronrod (7, 15) with breakpoints at multiples of the lobe
+// width and where wi.z = wo.z; phi_m over [0, pi] only for a mirror-symmetric model with wo in
+// the xz plane. The error is the outer estimate plus the integral of the
+// inner ones; the evaluation budget stops refinement of both levels.
+AdaptiveResult AdaptiveHalfVector(const Bxdf<double>& bxdf, const double* p, const Vector3d& wo, const LobeShape& shape,
+                                  const IntegrateOptions& o) {
+  AdaptiveResult out;
+  const double mu_o = wo.z();
+  if (!(mu_o > 0)) return out;
+  const double sin_o = std::sqrt(std::max(0.0, wo.x() * wo.x() + wo.y() * wo.y()));
+  const double phi_o = sin_o > 0 ? std::atan2(wo.y(), wo.x()) : 0.0;
+  const bool half = shape.mirror_symmetric && wo.y() == 0;
+  const double w = std::max(shape.width, 1e-12);  // a zero width would put every breakpoint at 0
+  constexpr double kHalfPi = 0.5 * kPi;
+
+  // theta_max(phi): wi.z = mu_o cos(2 theta) + sin_o cos(phi) sin(2 theta) > 0.
+  const auto theta_max = [&](double phi) { return 0.5 * (kHalfPi + std::atan2(sin_o * std::cos(phi), mu_o)); };
+
+  std::int64_t evals = 0, inner_calls = 0;
+  const double phi_end = half ? kPi : 2 * kPi;
+  const double factor = half ? 2.0 : 1.0;
+  // Where the horizon cuts a narrow lobe: phi = pi/2 + asin(s) with the cut
+  // at theta ~ mu_o / (2 s), s from mu_o / w upwards; and on the other side
+  // of pi/2, where theta_max rises from pi/4 towards pi/2 over the same
+  // scale of phi.
+  std::vector<double> breaks{kHalfPi};
+  if (!half) breaks.push_back(1.5 * kPi);
+  for (double s = mu_o / w / 16; s < 1; s *= 4) {
+    for (double side : {1.0, -1.0}) {
+      breaks.push_back(kHalfPi + side * std::asin(s));
+      if (!half) breaks.push_back(1.5 * kPi - side * std::asin(s));
+    }
+  }
+  std::sort(breaks.begin(), breaks.end());
+  breaks.erase(std::unique(breaks.begin(), breaks.end()), breaks.end());
+  // The budget: refinement at either level stops when one more bisection
+  // (30 evaluations, or 30 inner integrals) would pass it, keeping enough
+  // for the inner integrals the outer rule's first pass still needs.
+  const std::int64_t first_pass = 15 * static_cast<std::int64_t>(breaks.size() + 1);
+  std::int64_t inner_min_cost = 15;
+  const auto reserve = [&] { return std::max<std::int64_t>(0, first_pass - inner_calls) * inner_min_cost; };
+  // Each inner integral gets a share of the tolerance such that their
+  // integral over phi is at most half of it; the outer rule carries the
+  // inner error estimates (integrated with its weights) and adds its own.
+  const double inner_abs = o.abs_tolerance / (2 * factor * phi_end), inner_rel = 0.5 * o.rel_tolerance;
+  const auto inner_spent = [&] { return evals + 30 + reserve() > o.budget; };
+  const auto outer_spent = [&] {
+    const double per_inner = inner_calls > 0 ? double(evals) / double(inner_calls) : 15.0;
+    return double(evals) + 30 * per_inner > double(o.budget);
   };
-  auto g = [&](const Vector3d& h) -> Array3d {
-    const double wo_h = wo.dot(h);
-    const Vector3d wi = 2.0 * wo_h * h - wo;
-    if (!(wi.z() > 0) || !(wo_h > 0)) return Array3d::Zero();  // rounding at the ellipse's edge
-    return bxdf.Eval(params, wi, wo) * (wi.z() * 4.0 * wo_h);
+  const auto inner = [&](double phi) -> QuadValue {
+    ++inner_calls;
+    const double tmax = theta_max(phi);
+    const double cp = std::cos(phi);
+    const double ca = std::cos(phi + phi_o), sa = std::sin(phi + phi_o);
+    const auto g = [&](double t) -> QuadValue {
+      ++evals;
+      const double st = std::sin(t), ct = std::cos(t);
+      const Vector3d wm(st * ca, st * sa, ct);
+      const double o_dot_m = sin_o * st * cp + mu_o * ct;
+      // wi.z from the double-angle form: no cancellation at grazing.
+      const double wi_z = mu_o * std::cos(2 * t) + sin_o * cp * std::sin(2 * t);
+      if (!(wi_z > 0) || !(o_dot_m > 0)) return {};
+      Vector3d wi = 2 * o_dot_m * wm - wo;
+      wi.z() = wi_z;
+      return QuadValue{bxdf.Eval(p, wi, wo) * (wi_z * 4 * o_dot_m * st), Array3d::Zero()};
+    };
+    std::vector<double> inner_breaks;
+    GeometricBreaks(w, 0, tmax, inner_breaks);
+    // wi.z = wo.z at theta_m = atan2(sin_o cos(phi), mu_o) (cos(phi) > 0): the
+    // kink of models with max or min(cos theta_i, cos theta_o) (as the
+    // spherical rule's break at cos theta = mu_o).
+    if (cp > 0) inner_breaks.push_back(std::atan2(sin_o * cp, mu_o));
+    inner_min_cost = 15 * static_cast<std::int64_t>(inner_breaks.size() + 1);
+    return AdaptiveKronrod(g, 0.0, tmax, std::move(inner_breaks), inner_abs, inner_rel, o.max_subdivisions,
+                           inner_spent);
   };
-  // A single microfacet lobe has the GGX-like slope density the tan warp
-  // flattens; sums and other lobes need the asinh warp's reach.
-  const Warp warp = bxdf.Microfacet() ? Warp::kTan : Warp::kAsinh;
-  return AdaptiveSlope(chart, warp, y_lo, y_hi, range_x, g, o);
+  const QuadValue v = AdaptiveKronrod(inner, 0.0, phi_end, std::move(breaks), o.abs_tolerance / factor,
+                                      o.rel_tolerance, o.max_subdivisions, outer_spent);
+  out.value = v.value * factor;
+  out.error = v.error * factor;
+  out.evals = evals;
+  return out;
 }
 
 // Generic integrand near a peak: the slope chart centred on the peak's slope,
@@ -624,7 +643,7 @@ AdaptiveResult AdaptivePeak(const std::function<Array3d(const Vector3d&)>& g, co
     hi = inf;
     return true;
   };
-  return AdaptiveSlope(chart, Warp::kTan, -inf, inf, range_x, g, o);
+  return AdaptiveSlope(chart, -inf, inf, range_x, g, o);
 }
 
 // No lobe: directions by (phi, cos theta), phi measured from `phi0`, with
@@ -670,8 +689,8 @@ Estimate Run(const Problem& pb, Method method, const IntegrateOptions& o) {
     case Method::kAdaptive: {
       const auto t0 = std::chrono::steady_clock::now();
       AdaptiveResult r;
-      if (pb.bxdf && pb.alpha_x > 0) {
-        r = AdaptiveHalfVector(*pb.bxdf, pb.params, pb.wo, pb.alpha_x, pb.alpha_y, o);
+      if (pb.bxdf && pb.lobe) {
+        r = AdaptiveHalfVector(*pb.bxdf, pb.params, pb.wo, pb.shape, o);
       } else if (pb.bxdf) {
         r = AdaptiveSpherical(pb.g, std::atan2(pb.wo.y(), pb.wo.x()), pb.wo.z(), o);
       } else if (!pb.peak.isZero() && pb.width > 0) {
@@ -719,6 +738,27 @@ Method ParseMethod(const std::string& text) {
   throw std::invalid_argument("unknown integration method '" + text + "' (expected one of: " + known + ")");
 }
 
+LobeShape EstimateLobeShape(const Bxdf<double>& bxdf, const double* p) {
+  LobeShape shape;
+  // The model's declared lobe width; a model without a glossy lobe is broad.
+  const LobeWidth lobe = bxdf.Width(p);
+  shape.width = lobe.Any() ? std::min(1.0, lobe.Min()) : 1.0;
+  // Mirror symmetry about the xz plane, tested at fixed pairs spread over the
+  // hemisphere with wo in the plane.
+  shape.mirror_symmetric = true;
+  for (int k = 0; k < 24 && shape.mirror_symmetric; ++k) {
+    const double to = 0.07 + 1.45 * ((k * 7) % 24) / 24.0, ti = 0.05 + 1.5 * ((k * 11) % 24) / 24.0;
+    const double phi = 0.3 + 2.6 * ((k * 5) % 24) / 24.0;
+    const Vector3d wo(std::sin(to), 0, std::cos(to));
+    const Vector3d wi(std::sin(ti) * std::cos(phi), std::sin(ti) * std::sin(phi), std::cos(ti));
+    const Vector3d wi_m(wi.x(), -wi.y(), wi.z());
+    const Array3d a = bxdf.Eval(p, wi, wo), b = bxdf.Eval(p, wi_m, wo);
+    const double scale = std::max(a.abs().maxCoeff(), b.abs().maxCoeff());
+    if ((a - b).abs().maxCoeff() > 1e-12 * scale) shape.mirror_symmetric = false;
+  }
+  return shape;
+}
+
 Estimate DirectionalAlbedo(const Bxdf<double>& bxdf, const double* params, const Vector3d& wo_in, Method method,
                            const IntegrateOptions& options) {
   if (!(wo_in.norm() > 0) || !wo_in.allFinite())
@@ -746,13 +786,13 @@ Estimate DirectionalAlbedo(const Bxdf<double>& bxdf, const double* params, const
   pb.wo = wo;
   const LobeWidth lobe = bxdf.Width(params);
   if (lobe.Any() && std::isfinite(lobe.x) && std::isfinite(lobe.y)) {
-    pb.alpha_x = lobe.x;
-    pb.alpha_y = lobe.y;
+    pb.lobe = true;
+    pb.shape = options.shape ? *options.shape : EstimateLobeShape(bxdf, params);
     pb.peak = Reflect<double>(wo);
-    pb.width = 2.0 * std::max(pb.alpha_x, pb.alpha_y);
+    pb.width = 2.0 * std::max(lobe.x, lobe.y);
     // A half-vector lobe of solid angle pi ax ay maps to 4 (wo.h) pi ax ay
     // around the mirror direction (dwi = 4 |wo.h| dwh, Walter 2007 eq. 14).
-    pb.lobe_solid_angle = std::min(2.0 * kPi, 4.0 * wo.z() * kPi * pb.alpha_x * pb.alpha_y);
+    pb.lobe_solid_angle = std::min(2.0 * kPi, 4.0 * wo.z() * kPi * lobe.x * lobe.y);
   }
   return Run(pb, method, options);
 }

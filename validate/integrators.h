@@ -10,14 +10,16 @@
 //                    random digital shift per replicate) through the model's
 //                    sampling; the error comes from independent replicates;
 //  - gauss_legendre: deterministic product rule in (cos theta, phi);
-//  - adaptive:       deterministic, globally adaptive Gauss-Kronrod (7, 15)
-//                    product cubature on rectangles of the half-vector slope
-//                    plane, slopes stretched by the roughness and the
-//                    horizon mapped to the edges of the rectangles, accurate
-//                    for mirror-like lobes (alpha down to 1e-4) and grazing wo;
-//                    models that declare no lobe width (Bxdf::Width) are
-//                    integrated in (phi, cos theta) with nested adaptive
-//                    Gauss-Kronrod.
+//  - adaptive:       deterministic, nested globally adaptive Gauss-Kronrod
+//                    (7, 15) over the half vector (phi_m, theta_m), with the
+//                    horizon as the exact end of every inner range and
+//                    breakpoints at multiples of the declared lobe width,
+//                    accurate for mirror-like lobes (alpha down to 1e-4) and
+//                    grazing wo (mu down to 1e-15); models that declare no
+//                    lobe width (Bxdf::Width) are integrated in
+//                    (phi, cos theta). The one directional-albedo rule of
+//                    brdfkit: check, convergence and the albedo tables
+//                    (validate/albedo.h) all call it.
 //
 // Every estimate carries an honest absolute error: the standard error (times
 // a safety factor) for Monte Carlo, the spread of replicates for QMC, the
@@ -31,6 +33,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -54,11 +57,25 @@ struct Estimate {
   double seconds = 0;                             // wall time
 };
 
+// Facts about a model at one parameter point that steer the adaptive rule.
+struct LobeShape {
+  double width = 1.0;            // angular width of the narrowest glossy lobe in wm, radians (about alpha)
+  bool mirror_symmetric = true;  // f(wi, wo) unchanged by reflecting both about the xz plane
+};
+
+// Width from the model's declared lobe width (Bxdf::Width; 1 when it has
+// no glossy lobe), mirror symmetry tested on fixed direction pairs.
+LobeShape EstimateLobeShape(const Bxdf<double>& bxdf, const double* params);
+
 struct IntegrateOptions {
   std::int64_t budget = 4096;   // samples (MC/QMC), nodes (Gauss-Legendre), max evaluations (adaptive)
   std::uint64_t seed = 1;
   double abs_tolerance = 1e-9;  // adaptive: stop when the error estimate is below this (or the budget is spent)
   double rel_tolerance = 1e-9;
+  int max_subdivisions = 400;   // adaptive: bisections per one-dimensional integral
+  // Adaptive: the lobe facts of this parameter point when already known
+  // (tables call the rule many times per point); empty: EstimateLobeShape.
+  std::optional<LobeShape> shape;
 };
 
 // E(wo) = int over the upper hemisphere of f_r(wi, wo) cos(theta_i) dwi.

@@ -69,15 +69,15 @@ std::vector<StressRow> RunStress(const StressOptions& options = {});
 inline constexpr double kStressValueFloor = 1e-12;
 
 // Stiff integrals: directional albedo of mirror-like lobes (alpha = 1e-4)
-// at mu = 1e-6, by the half-vector cubature of validate/albedo.h and by the
-// adaptive hemisphere rule of validate/integrators.h, independently.
+// at mu = 1e-6, by the adaptive rule the albedo tables use and, independently,
+// by scrambled Sobol' points (2^20) through the model's own sampling.
 struct StiffIntegral {
   std::string model;
   std::string params;
   double mu = 0;
   double value = 0, error = 0;          // AlbedoAtMu, green channel
   std::int64_t evals = 0;
-  double reference = 0, reference_error = 0;  // DirectionalAlbedo (adaptive)
+  double reference = 0, reference_error = 0;  // DirectionalAlbedo (sobol)
   std::int64_t reference_evals = 0;
   double seconds = 0;
   bool finite = false;

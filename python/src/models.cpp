@@ -142,7 +142,9 @@ py::array_t<double> Albedo(const PyModel& m, const py::handle& wo_obj, double to
       for (std::size_t k = r.begin(); k < r.end(); ++k) {
         const double* w = wo.data() + 3 * k;
         validate::AlbedoValue a;
-        if (w[2] > 0) a = validate::HalfVectorAlbedo(b, m.params.data(), Eigen::Vector3d(w[0], w[1], w[2]), shape, q);
+        if (w[2] > 0)
+          a = validate::DirectionalAlbedo(b, m.params.data(), Eigen::Vector3d(w[0], w[1], w[2]),
+                                          validate::Method::kAdaptive, q.Integrate(shape));
         for (int c = 0; c < 3; ++c) o[3 * k + c] = a.value[c];
       }
     });
