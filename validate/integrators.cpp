@@ -516,10 +516,9 @@ AdaptiveResult AdaptiveSlope(const SlopeChart& chart, double y_lo, double y_hi, 
   return out;
 }
 
-// Breakpoints width * 4^k (k >= -1) in (start, limit).
-void GeometricBreaks(double width, double start, double limit, std::vector<double>& out) {
-  for (double x = width / 4; x < limit; x *= 4)
-    if (x > start) out.push_back(x);
+// Breakpoints width * 4^k (k >= -1) below `limit`.
+void GeometricBreaks(double width, double limit, std::vector<double>& out) {
+  for (double x = width / 4; x < limit; x *= 4) out.push_back(x);
 }
 
 // Directional albedo over the half vector wm = (theta_m, phi_m), dwi = 4
@@ -528,8 +527,8 @@ void GeometricBreaks(double width, double start, double limit, std::vector<doubl
 // theta_m = theta_max(phi_m), the end of every inner range, so the
 // integrand is smooth on the integration domain. Both angles by globally
 // adaptive Gauss-Kronrod (7, 15) with breakpoints at multiples of the lobe
-// width and where wi.z = wo.z; phi_m over [0, pi] only for a mirror-symmetric model with wo in
-// the xz plane. The error is the outer estimate plus the integral of the
+// width and where wi.z = wo.z; phi_m over [0, pi] only for a
+// mirror-symmetric model with wo in the xz plane. The error is the outer estimate plus the integral of the
 // inner ones; the evaluation budget stops refinement of both levels.
 AdaptiveResult AdaptiveHalfVector(const Bxdf<double>& bxdf, const double* p, const Vector3d& wo, const LobeShape& shape,
                                   const IntegrateOptions& o) {
@@ -595,7 +594,7 @@ AdaptiveResult AdaptiveHalfVector(const Bxdf<double>& bxdf, const double* p, con
       return QuadValue{bxdf.Eval(p, wi, wo) * (wi_z * 4 * o_dot_m * st), Array3d::Zero()};
     };
     std::vector<double> inner_breaks;
-    GeometricBreaks(w, 0, tmax, inner_breaks);
+    GeometricBreaks(w, tmax, inner_breaks);
     // wi.z = wo.z at theta_m = atan2(sin_o cos(phi), mu_o) (cos(phi) > 0): the
     // kink of models with max or min(cos theta_i, cos theta_o) (as the
     // spherical rule's break at cos theta = mu_o).
@@ -787,7 +786,8 @@ Estimate DirectionalAlbedo(const Bxdf<double>& bxdf, const double* params, const
   const LobeWidth lobe = bxdf.Width(params);
   if (lobe.Any() && std::isfinite(lobe.x) && std::isfinite(lobe.y)) {
     pb.lobe = true;
-    pb.shape = options.shape ? *options.shape : EstimateLobeShape(bxdf, params);
+    // Only the adaptive rule reads the shape; its symmetry test costs 48 evaluations.
+    if (method == Method::kAdaptive) pb.shape = options.shape ? *options.shape : EstimateLobeShape(bxdf, params);
     pb.peak = Reflect<double>(wo);
     pb.width = 2.0 * std::max(lobe.x, lobe.y);
     // A half-vector lobe of solid angle pi ax ay maps to 4 (wo.h) pi ax ay
