@@ -10,6 +10,19 @@ namespace brdfkit::formats {
 
 namespace {
 
+// D is floored at this fraction of its maximum: low enough that it follows
+// the lobes' tails (values f cos 4 sigma / D stay smooth where f cos is
+// above 1e-12 of its peak), high enough that the values stay within float.
+constexpr double kNdfFloor = 1e-12;
+// Shares of the vndf (the warp of the value nodes): the visible normals
+// (with a uniform part kVndfSpread / pi added to D for the tails), a uniform
+// density over the warped square (regular at the pole u_x = 0, where the
+// visible-normal density vanishes as u^3, and in the azimuth rows facing
+// away from wi, which hold few visible normals), and a band around the
+// horizon of wo, uniform in cos(theta_o) over about |cos(theta_o)| <
+// kHorizonBand, so that the cells crossing the horizon are short.
+constexpr double kVndfSpread = 0.2, kLobeShare = 0.35, kUniformShare = 0.25, kBandShare = 0.4, kHorizonBand = 0.2;
+
 double Luminance(const Rgb<double>& c) { return 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]; }
 
 void Check(bool ok, const std::string& what) {
@@ -36,58 +49,80 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& o) {
   const bool iso = o.phi_i == 0;
   using RB = RglBsdf;
 
-  // 1. ndf.
-  const std::size_t nd = static_cast<std::size_t>(o.ndf);
-  std::vector<double> d(nd * nd);
-  double d_max = 0;
+  // 1. ndf: the retro-reflection f(w, w) at every node (0 in the horizon
+  // column, where no direction reflects back).
+  const std::size_t nd = static_cast<std::size_t>(o.ndf), ns = static_cast<std::size_t>(o.sigma);
+  std::vector<double> retro(nd * nd, 0.0);
   for (std::size_t y = 0; y < nd; ++y)
-    for (std::size_t x = 0; x < nd; ++x) {
-      const double theta = RB::UToTheta(x / double(nd - 1)), phi = RB::UToPhi(y / double(nd - 1));
-      double v = 0;
-      if (x + 1 < nd) {  // the last column is the horizon, where cos^2 vanishes
-        if (iso && y > 0) {
-          v = d[x];
-        } else {
-          const Eigen::Vector3d wm = RB::Direction(theta, phi);
-          v = Luminance(Source(f, wm, wm)) * wm.z() * wm.z();
-        }
+    for (std::size_t x = 0; x + 1 < nd; ++x) {
+      if (iso && y > 0) {
+        retro[y * nd + x] = retro[x];
+        continue;
       }
-      d[y * nd + x] = v;
-      d_max = std::max(d_max, v);
+      const Eigen::Vector3d wm = RB::Direction(RB::UToTheta(x / double(nd - 1)), RB::UToPhi(y / double(nd - 1)));
+      retro[y * nd + x] = Luminance(Source(f, wm, wm));
     }
-  // A black source has no retro-reflection to learn from: a uniform density.
-  const double floor = d_max > 0 ? 1e-5 * d_max : 1.0;
-  for (double& v : d) v = std::max(v, floor);
   // Trapezoidal weights of the nodes over the square times the Jacobian.
   auto node_weight = [](std::size_t i, std::size_t n) { return (i == 0 || i + 1 == n ? 0.5 : 1.0) / double(n - 1); };
   std::vector<Eigen::Vector3d> m_dir(nd * nd);
   std::vector<double> m_w(nd * nd);
-  double norm = 0;
   for (std::size_t y = 0; y < nd; ++y)
     for (std::size_t x = 0; x < nd; ++x) {
       const double ux = x / double(nd - 1), theta = RB::UToTheta(ux);
       m_dir[y * nd + x] = RB::Direction(theta, RB::UToPhi(y / double(nd - 1)));
       m_w[y * nd + x] = node_weight(x, nd) * node_weight(y, nd) * 2 * kPi * kPi * ux * std::sin(theta);
-      norm += d[y * nd + x] * m_dir[y * nd + x].z() * m_w[y * nd + x];
     }
-  std::vector<float> ndf(nd * nd);
-  for (std::size_t i = 0; i < nd * nd; ++i) ndf[i] = static_cast<float>(d[i] / norm);
-  const Warp2D ndf_table(ndf, nd, nd, {}, false);
-
-  // 2. sigma.
-  const std::size_t ns = static_cast<std::size_t>(o.sigma);
-  std::vector<float> sigma(ns * ns);
-  for (std::size_t y = 0; y < ns; ++y)
-    for (std::size_t x = 0; x < ns; ++x) {
-      if (iso && y > 0) {
-        sigma[y * ns + x] = sigma[x];
-        continue;
+  // sigma(wi) of a normalised D on the ns x ns square of wi.
+  auto sigma_of = [&](const std::vector<float>& dn) {
+    std::vector<float> out(ns * ns);
+    for (std::size_t y = 0; y < ns; ++y)
+      for (std::size_t x = 0; x < ns; ++x) {
+        if (iso && y > 0) {
+          out[y * ns + x] = out[x];
+          continue;
+        }
+        const Eigen::Vector3d wi = RB::Direction(RB::UToTheta(x / double(ns - 1)), RB::UToPhi(y / double(ns - 1)));
+        double sum = 0;
+        for (std::size_t i = 0; i < nd * nd; ++i) sum += dn[i] * std::max(0.0, wi.dot(m_dir[i])) * m_w[i];
+        out[y * ns + x] = static_cast<float>(sum);
       }
-      const Eigen::Vector3d wi = RB::Direction(RB::UToTheta(x / double(ns - 1)), RB::UToPhi(y / double(ns - 1)));
-      double s = 0;
-      for (std::size_t i = 0; i < nd * nd; ++i) s += ndf[i] * std::max(0.0, wi.dot(m_dir[i])) * m_w[i];
-      sigma[y * ns + x] = static_cast<float>(s);
+    return out;
+  };
+  // Floored (so that every direction keeps some density) and normalised so
+  // that int D cos(theta_m) dw = 1.
+  auto normalise = [&](std::vector<double> d) {
+    double d_max = 0;
+    for (double v : d) d_max = std::max(d_max, v);
+    // A black source has no retro-reflection to learn from: a uniform density.
+    const double floor = d_max > 0 ? kNdfFloor * d_max : 1.0;
+    double norm = 0;
+    for (std::size_t i = 0; i < nd * nd; ++i) {
+      d[i] = std::max(d[i], floor);
+      norm += d[i] * m_dir[i].z() * m_w[i];
     }
+    std::vector<float> out(nd * nd);
+    for (std::size_t i = 0; i < nd * nd; ++i) out[i] = static_cast<float>(d[i] / norm);
+    return out;
+  };
+  // First D ~ f(w, w) cos^2 (sigma ~ cos), then the height-correlated Smith
+  // fixed point D ~ f(w, w) cos (2 sigma - cos).
+  std::vector<double> d(nd * nd);
+  for (std::size_t i = 0; i < nd * nd; ++i) d[i] = retro[i] * m_dir[i].z() * m_dir[i].z();
+  std::vector<float> ndf = normalise(d), sigma = sigma_of(ndf);
+  {
+    const Warp2D s_table(sigma, ns, ns, {}, false);
+    for (std::size_t y = 0; y < nd; ++y)
+      for (std::size_t x = 0; x < nd; ++x) {
+        const std::size_t i = y * nd + x;
+        const double mu = m_dir[i].z(), sg = s_table.Eval(x / double(nd - 1), y / double(nd - 1));
+        // 2 sigma - cos >= sigma when D is symmetric about the normal (then
+        // sigma >= cos); the max keeps other estimates positive.
+        d[i] = retro[i] * mu * std::max(2 * sg - mu, sg);
+      }
+    ndf = normalise(d);
+    sigma = sigma_of(ndf);
+  }
+  const Warp2D ndf_table(ndf, nd, nd, {}, false);
   const Warp2D sigma_table(sigma, ns, ns, {}, false);
 
   // Slices.
@@ -102,12 +137,18 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& o) {
   const std::size_t np = phi_nodes.size(), nt = theta_nodes.size();
   auto slice_wi = [&](std::size_t a, std::size_t b) { return RB::Direction(theta_nodes[b], iso ? 0.0 : phi_nodes[a]); };
 
-  // 3. vndf.
+  // 3. vndf: three shares, each normalised over the square (trapezoidal
+  // rule on the nodes, as the reader normalises).
   const std::size_t nv = static_cast<std::size_t>(o.vndf);
-  // The warp's density adds a uniform share to D so that the tails and the
-  // horizon keep nodes (D itself, in the reconstruction, is left alone).
-  constexpr double spread = 0.2;
+  auto mass_of = [&](const std::vector<double>& q) {
+    double m = 0;
+    for (std::size_t y = 0; y + 1 < nv; ++y)
+      for (std::size_t x = 0; x + 1 < nv; ++x)
+        m += 0.25 * (q[y * nv + x] + q[y * nv + x + 1] + q[(y + 1) * nv + x] + q[(y + 1) * nv + x + 1]);
+    return m;
+  };
   std::vector<float> vndf(np * nt * nv * nv);
+  std::vector<double> lobe(nv * nv), band(nv * nv);
   for (std::size_t a = 0; a < np; ++a)
     for (std::size_t b = 0; b < nt; ++b) {
       float* out = vndf.data() + (a * nt + b) * nv * nv;
@@ -117,13 +158,31 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& o) {
       }
       const Eigen::Vector3d wi = slice_wi(a, b);
       const double sig = sigma_table.Eval(RB::ThetaToU(theta_nodes[b]), RB::PhiToU(iso ? 0.0 : phi_nodes[a]));
+      // cos(theta_o) of the reflection of wi about the normal at u.
+      auto cos_o = [&](double ux, double uy) {
+        const Eigen::Vector3d wm = RB::Direction(RB::UToTheta(ux), RB::UToPhi(uy));
+        return 2 * wi.dot(wm) * wm.z() - wi.z();
+      };
       for (std::size_t y = 0; y < nv; ++y)
         for (std::size_t x = 0; x < nv; ++x) {
           const double ux = x / double(nv - 1), uy = y / double(nv - 1), theta = RB::UToTheta(ux);
           const Eigen::Vector3d wm = RB::Direction(theta, RB::UToPhi(uy));
-          out[y * nv + x] = static_cast<float>((ndf_table.Eval(ux, uy) + spread * sig / kPi) * std::max(0.0, wi.dot(wm)) /
-                                               sig * 2 * kPi * kPi * ux * std::sin(theta));
+          lobe[y * nv + x] = (ndf_table.Eval(ux, uy) + kVndfSpread * sig / kPi) * std::max(0.0, wi.dot(wm)) * ux * std::sin(theta);
+          // Central difference; past u_x = 0 or 1 the direction formula
+          // continues smoothly, so the end nodes need no special case.
+          constexpr double h = 1e-4;
+          const double z = cos_o(ux, uy) / kHorizonBand, dz = (cos_o(ux + h, uy) - cos_o(ux - h, uy)) / (2 * h);
+          band[y * nv + x] = std::exp(-z * z) * std::abs(dz);
         }
+      // Anisotropic files interpolate the values across phi_i slices at fixed
+      // s as well; there the uniform and band shares raise the error
+      // (measured in bench/RESULTS.md), so their vndf is the visible normals.
+      const double lobe_share = iso ? kLobeShare : 1.0, uniform_share = iso ? kUniformShare : 0.0,
+                   band_share = iso ? kBandShare : 0.0;
+      const double ml = mass_of(lobe), mb = mass_of(band), mu = double((nv - 1) * (nv - 1));
+      for (std::size_t i = 0; i < nv * nv; ++i)
+        out[i] = static_cast<float>(lobe_share * lobe[i] / ml + uniform_share / mu +
+                                    (mb > 0 ? band_share * band[i] / mb : 0.0));  // no band mass: no horizon in reach
     }
   const Warp2D vndf_warp(vndf, nv, nv, {phi_nodes, theta_nodes}, true);
 
@@ -145,12 +204,17 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& o) {
           const std::array<double, 2> u = vndf_warp.Sample(x / double(n - 1), y / double(n - 1), slice);
           const Eigen::Vector3d wm = RB::Direction(RB::UToTheta(u[0]), RB::UToPhi(u[1]));
           const Eigen::Vector3d wo = 2 * wi.dot(wm) * wm - wi;
-          // Below the horizon the value continues f cos(theta_o) oddly (f at
-          // the mirror image of wo, times the negative cosine), so that
-          // interpolation across the horizon stays smooth and crosses zero there.
+          // Below the horizon the value continues oddly in cos(theta_o): minus
+          // the value at the mirror image of wo (with the ndf at its half
+          // vector), so that across the horizon the values are c cos(theta_o)
+          // on both sides and their interpolation crosses zero there.
           const Eigen::Vector3d wo_n = wo.normalized();
           const Eigen::Vector3d wo_up(wo_n.x(), wo_n.y(), std::max(std::abs(wo_n.z()), 1e-9));
-          const Rgb<double> v = Source(f, wi, wo_up) * wo_n.z() * 4 * sig / ndf_table.Eval(u[0], u[1]);
+          const Eigen::Vector3d wm_up = (wi + wo_up).normalized();
+          const double d_at = wo_n.z() >= 0 ? ndf_table.Eval(u[0], u[1])
+                                            : ndf_table.Eval(RB::ThetaToU(std::acos(std::min(wm_up.z(), 1.0))),
+                                                             RB::PhiToU(std::atan2(wm_up.y(), wm_up.x())));
+          const Rgb<double> v = Source(f, wi, wo_up) * wo_n.z() * 4 * sig / d_at;
           for (int c = 0; c < 3; ++c) rgb[(slice * 3 + c) * plane + y * n + x] = static_cast<float>(v[c]);
           lum[slice * plane + y * n + x] = static_cast<float>(std::max(Luminance(v), 0.0));  // a sampling density
         }
@@ -174,7 +238,7 @@ void WriteRgl(const std::string& path, const BrdfFunction& f, const RglOptions& 
 }
 
 RglAccuracy MeasureRglAccuracy(const RglBsdf& file, const BrdfFunction& f, double theta_max_deg, double step_deg,
-                               double threshold) {
+                               double threshold, double theta_o_max_deg) {
   RglAccuracy acc;
   std::vector<double> errors;
   const double deg = kPi / 180;
@@ -195,6 +259,7 @@ RglAccuracy MeasureRglAccuracy(const RglBsdf& file, const BrdfFunction& f, doubl
           peak = peak.max(ref.back());
         }
       for (std::size_t k = 0; k < wos.size(); ++k) {
+        if (!(std::acos(std::min(wos[k].z(), 1.0)) < theta_o_max_deg * deg)) continue;
         const Rgb<double> got = file.FrCos(wi, wos[k]);
         for (int c = 0; c < 3; ++c) {
           if (!(ref[k][c] > threshold * peak[c])) continue;

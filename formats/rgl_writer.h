@@ -2,27 +2,35 @@
 // of lobes, a fit result or a measured table, isotropic or anisotropic.
 //
 // The file is built so that the format's own reconstruction reproduces the
-// source, following the acquisition of Dupuy & Jakob 2018 (sec. 4-5):
-//  1. ndf: D(wm) estimated from the retro-reflection, D ~ f(wm, wm) cos^2
-//     theta_m (for a microfacet BRDF f(w, w) = F G2 D / (4 cos^2 theta)),
-//     floored at 1e-5 of its maximum so that every direction keeps some
-//     density, normalised so that int D cos(theta_m) dw = 1;
+// source. The writer is free in the ndf and the vndf (the reconstruction
+// needs only value x ndf / (4 sigma) right) and chooses them, after the
+// acquisition of Dupuy & Jakob 2018 (sec. 4-5), for interpolation:
+//  1. ndf: D(wm) from the retro-reflection, first D ~ f(wm, wm) cos^2
+//     theta_m, then one step of the height-correlated Smith fixed point D ~
+//     f(w, w) cos (2 sigma(w) - cos) (exact for such microfacet BRDFs, whose
+//     G2(w, w) = cos / (2 sigma - cos)); floored at 1e-12 of its maximum so
+//     that it follows the lobes' tails, normalised so that
+//     int D cos(theta_m) dw = 1;
 //  2. sigma(wi) = int D(m) <wi, m>+ dm, by the trapezoidal rule over the
 //     ndf nodes;
-//  3. vndf per slice (phi_i, theta_i): (D(wm) + 0.2 sigma(wi) / pi) <wi, wm>+
-//     / sigma(wi) times the Jacobian 2 pi^2 u_x sin(theta_m) of the warped
-//     square (jacobian = 1): the visible normals plus a uniform share (about
-//     a sixth of the nodes) for the tails and the horizon;
+//  3. vndf per slice (phi_i, theta_i), over the warped square (jacobian =
+//     1): 35 % visible normals (D(wm) + 0.2 sigma / pi) <wi, wm>+ u_x
+//     sin(theta_m), 25 % uniform (regular at the pole u_x = 0, where the
+//     visible normals' density vanishes as u_x^3, and in the rows facing away
+//     from wi), 40 % a band uniform in cos(theta_o) around the horizon of wo
+//     (|cos(theta_o)| up to about 0.2), so that the cells crossing the
+//     horizon are short; anisotropic files, whose values are also
+//     interpolated across phi_i, keep the visible normals alone;
 //  4. rgb at the uniform N x M nodes s of each slice: wm = V(s), the warp of
 //     the float32 vndf as the reader builds it, wo the reflection of wi
 //     about wm, value = f(wi, wo) cos(theta_o) 4 sigma(wi) / D(wm) with
 //     sigma and D the reader's bilinear values; below the horizon the value
-//     continues oddly (f at the mirror image of wo times the negative
-//     cosine), so that interpolation crosses zero at the horizon;
+//     continues oddly in cos(theta_o) (minus the value at the mirror image
+//     of wo), so that interpolation crosses zero at the horizon;
 //     luminance is the Rec. 709 luminance of rgb, clipped at 0.
 // At every node the reconstruction then returns f cos(theta_o) to float32
 // rounding; between nodes its error is that of the interpolation, measured
-// by RglAccuracy.
+// by MeasureRglAccuracy.
 #pragma once
 
 #include <Eigen/Core>
@@ -39,7 +47,7 @@ namespace brdfkit::formats {
 using BrdfFunction = std::function<Rgb<double>(const Eigen::Vector3d& wi, const Eigen::Vector3d& wo)>;
 
 struct RglOptions {
-  int theta_i = 24;          // incident elevation slices, uniform over [0, theta_max]
+  int theta_i = 32;          // incident elevation slices, uniform over [0, theta_max]
   double theta_max_deg = 87.5;
   int phi_i = 0;             // 0: isotropic; otherwise azimuth slices over [-pi, pi] (the last repeats the first)
   int ndf = 256;             // ndf resolution (square)
@@ -60,7 +68,8 @@ void WriteRgl(const std::string& path, const BrdfFunction& f, const RglOptions& 
 // step_deg, offset by half a step; azimuths 0, 50, 100 ... degrees for
 // anisotropic files) and each outgoing direction on a 1 x 2 degree grid,
 // relative error of f cos(theta_o) per channel, where the source value is
-// above `threshold` times its maximum over wo for that wi.
+// above `threshold` times its maximum over wo for that wi and theta_o is
+// below theta_o_max_deg.
 struct RglAccuracy {
   double max_relative = 0;
   double mean_relative = 0;
@@ -68,6 +77,6 @@ struct RglAccuracy {
   std::size_t points = 0;
 };
 RglAccuracy MeasureRglAccuracy(const RglBsdf& file, const BrdfFunction& f, double theta_max_deg = 80,
-                               double step_deg = 10, double threshold = 0.01);
+                               double step_deg = 10, double threshold = 0.01, double theta_o_max_deg = 90);
 
 }  // namespace brdfkit::formats
