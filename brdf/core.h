@@ -6,7 +6,9 @@
 //  - wi points towards the light, wo towards the detector, both away from
 //    the surface;
 //  - Eval returns f_r(wi, wo) in 1/sr, per RGB channel, WITHOUT the cosine;
-//  - a direction with cos(theta) <= 0 (at or below the horizon) gives f_r = 0.
+//  - a direction with cos(theta) <= 0 (at or below the horizon) gives f_r = 0,
+//    except in a model whose kind has LobeKind::kTransmission: it scatters
+//    over the whole sphere, and gives f = 0 only on the horizon.
 //
 // Everything is templated on the scalar T so the same code runs with double,
 // float and ceres::Jet. Math is called unqualified (using std::sqrt; sqrt(x))
@@ -285,7 +287,8 @@ class ModelError : public std::runtime_error {
 // A sampled direction wi with its solid-angle density. valid is false when
 // the sample falls below the horizon (a lobe that reaches past it); such a
 // sample carries no weight and the model's pdf integrates over the upper
-// hemisphere to the sampled fraction.
+// hemisphere to the sampled fraction. A transmitting model samples the
+// whole sphere, and its pdf integrates over the sphere to that fraction.
 template <typename T>
 struct BsdfSample {
   Vec3<T> wi = Vec3<T>(T(0), T(0), T(1));
@@ -352,6 +355,10 @@ class Bxdf {
   // Channel c of f_r depends only on channel c of every colour parameter.
   virtual bool ChannelsIndependent() const { return false; }
   virtual const MicrofacetView<T>* Microfacet() const { return nullptr; }
+  // eta_wi / eta_wo, the refractive index on wi's side over that on wo's
+  // side, for a transmitting model (generalised reciprocity: f(wi, wo)
+  // RelativeIndex(wi, wo)^2 = f(wo, wi)); 1 for every other model.
+  virtual T RelativeIndex(const T* /*p*/, const Vec3<T>& /*wi*/, const Vec3<T>& /*wo*/) const { return T(1); }
 };
 
 // Sampling by reflection about a sampled unit normal m (a microfacet normal

@@ -135,6 +135,34 @@ inline T FresnelConductor(const T& eta, const T& k, const T& cos_theta) {
   return (rs + rp) / T(2);
 }
 
+// --- sampling ----------------------------------------------------------------
+
+// A GGX normal from the distribution of normals visible from v (v.z > 0),
+// density G1(v, m) max(0, v.m) D(m) / v.z (Heitz 2018, listing 1: stretch,
+// sample the projected hemisphere, unstretch).
+inline Eigen::Vector3d SampleGgxVisibleNormal(double ax, double ay, const Eigen::Vector3d& v, double u1, double u2) {
+  const Eigen::Vector3d vh = Eigen::Vector3d(ax * v.x(), ay * v.y(), v.z()).normalized();
+  const double lensq = vh.x() * vh.x() + vh.y() * vh.y();
+  const Eigen::Vector3d t1 =
+      lensq > 0 ? Eigen::Vector3d(-vh.y(), vh.x(), 0) / std::sqrt(lensq) : Eigen::Vector3d(1, 0, 0);
+  const Eigen::Vector3d t2 = vh.cross(t1);
+  const double r = std::sqrt(u1), phi = 2.0 * kPi * u2;
+  const double a = r * std::cos(phi);
+  double b = r * std::sin(phi);
+  const double s_blend = 0.5 * (1.0 + vh.z());
+  b = (1.0 - s_blend) * std::sqrt(std::max(0.0, 1.0 - a * a)) + s_blend * b;
+  const Eigen::Vector3d nh = a * t1 + b * t2 + std::sqrt(std::max(0.0, 1.0 - a * a - b * b)) * vh;
+  return Eigen::Vector3d(ax * nh.x(), ay * nh.y(), std::max(0.0, nh.z())).normalized();
+}
+
+// A Beckmann normal with density D(m) cos(theta_m) (Walter 2007 eq. 28 in
+// slope space: the slopes are Gaussian with variance alpha^2 / 2 per axis).
+inline Eigen::Vector3d SampleBeckmannNormal(double ax, double ay, double u1, double u2) {
+  const double r = std::sqrt(-std::log(1.0 - u1));
+  const double phi = 2.0 * kPi * u2;
+  return Eigen::Vector3d(-ax * r * std::cos(phi), -ay * r * std::sin(phi), 1.0).normalized();
+}
+
 // --- the model ---------------------------------------------------------------
 
 enum class MicrofacetDistribution { kGgx, kBeckmann };
@@ -286,27 +314,10 @@ class MicrofacetModel {
       ay = Value(ty);
     }
     Eigen::Vector3d wm;
-    if constexpr (Config::kDist == MicrofacetDistribution::kGgx) {
-      // Heitz 2018, listing 1: stretch, sample the projected hemisphere, unstretch.
-      const Eigen::Vector3d v(Value(wo.x()), Value(wo.y()), Value(wo.z()));
-      const Eigen::Vector3d vh = Eigen::Vector3d(ax * v.x(), ay * v.y(), v.z()).normalized();
-      const double lensq = vh.x() * vh.x() + vh.y() * vh.y();
-      const Eigen::Vector3d t1 =
-          lensq > 0 ? Eigen::Vector3d(-vh.y(), vh.x(), 0) / std::sqrt(lensq) : Eigen::Vector3d(1, 0, 0);
-      const Eigen::Vector3d t2 = vh.cross(t1);
-      const double r = std::sqrt(u1), phi = 2.0 * kPi * u2;
-      const double a = r * std::cos(phi);
-      double b = r * std::sin(phi);
-      const double s_blend = 0.5 * (1.0 + vh.z());
-      b = (1.0 - s_blend) * std::sqrt(std::max(0.0, 1.0 - a * a)) + s_blend * b;
-      const Eigen::Vector3d nh = a * t1 + b * t2 + std::sqrt(std::max(0.0, 1.0 - a * a - b * b)) * vh;
-      wm = Eigen::Vector3d(ax * nh.x(), ay * nh.y(), std::max(0.0, nh.z())).normalized();
-    } else {
-      // Beckmann slopes are Gaussian with variance alpha^2 / 2 per axis.
-      const double r = std::sqrt(-std::log(1.0 - u1));
-      const double phi = 2.0 * kPi * u2;
-      wm = Eigen::Vector3d(-ax * r * std::cos(phi), -ay * r * std::sin(phi), 1.0).normalized();
-    }
+    if constexpr (Config::kDist == MicrofacetDistribution::kGgx)
+      wm = SampleGgxVisibleNormal(ax, ay, Eigen::Vector3d(Value(wo.x()), Value(wo.y()), Value(wo.z())), u1, u2);
+    else
+      wm = SampleBeckmannNormal(ax, ay, u1, u2);
     Eigen::Vector3d wi;
     if (!ReflectAbout(wo, wm, wi)) return s;  // facet seen from behind
     return SampledFrom(*this, p, wo, wi);

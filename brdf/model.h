@@ -18,6 +18,8 @@
 //   double SampleWeight(const double* p) const;                  // lobe choice in sums
 //   template <class T> T D(const T* p, const Vec3<T>& wm) const;  // microfacet models
 //   template <class T> T G1(const T* p, const Vec3<T>& w, const Vec3<T>& wm) const;  // Smith
+//   template <class T> T RelativeIndex(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const;
+//     (eta_wi / eta_wo; required when kKind has kTransmission, see Bxdf::RelativeIndex)
 // and is listed once in registry.h. The traits are read in one place,
 // detail::Traits below, and reach the tools through Bxdf::Kind, Width and
 // ChannelsIndependent.
@@ -60,6 +62,11 @@ struct Traits {
   };
   static_assert(kHasWidth || !(kKind & LobeKind::kGlossy),
                 "a glossy model declares its lobe width: LobeWidth Width(const double* p) const");
+  static constexpr bool kHasRelativeIndex = requires(const M& m, const double* p, const Vec3<double>& w) {
+    { m.template RelativeIndex<double>(p, w, w) } -> std::same_as<double>;
+  };
+  static_assert(kHasRelativeIndex || !(kKind & LobeKind::kTransmission),
+                "a transmitting model declares its index ratio: T RelativeIndex(const T* p, wi, wo) const");
   static constexpr bool kChannelsIndependent = [] {
     if constexpr (requires { M::kChannelsIndependent; }) return bool(M::kChannelsIndependent);
     return false;
@@ -135,6 +142,10 @@ class ModelAdapter final : public Bxdf<T> {
     }
   }
   const MicrofacetView<T>* Microfacet() const override { return micro_.get(); }
+  T RelativeIndex(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const override {
+    if constexpr (Traits<M>::kHasRelativeIndex) return m_->template RelativeIndex<T>(p, wi, wo);
+    else return T(1);
+  }
   unsigned Kind() const override { return Traits<M>::kKind; }
   LobeWidth Width(const double* p) const override { return Traits<M>::Width(*m_, p); }
   bool ChannelsIndependent() const override { return Traits<M>::kChannelsIndependent; }
@@ -215,6 +226,14 @@ class SumBxdf final : public Bxdf<T> {
     unsigned k = 0;
     for (const auto& l : lobes_) k |= l->Kind();
     return k;
+  }
+  // That of the first transmitting lobe: the others scatter only within a
+  // side, where the ratio is 1 (a sum of interfaces of different index has
+  // no generalised reciprocity to check).
+  T RelativeIndex(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const override {
+    for (std::size_t k = 0; k < lobes_.size(); ++k)
+      if (lobes_[k]->Kind() & LobeKind::kTransmission) return lobes_[k]->RelativeIndex(p + offsets_[k], wi, wo);
+    return T(1);
   }
   // The narrowest lobe of the sum along each axis.
   LobeWidth Width(const double* p) const override {

@@ -23,6 +23,7 @@
 #include "brdf/rgl.h"
 #include "brdf/utia.h"
 #include "brdf/astm.h"
+#include "brdf/rough_dielectric.h"
 
 namespace brdfkit {
 
@@ -53,6 +54,8 @@ using RegisteredModels = std::tuple<
     Merl,
     Rgl,
     Utia,
-    Astm>;
+    Astm,
+    GgxGlass,
+    BeckmannGlass>;
 
 }  // namespace brdfkit

@@ -44,6 +44,9 @@ class ModelProperties : public ::testing::TestWithParam<std::string> {
     return d;
   }
 
+  // A transmitting model scatters over the whole sphere (LobeKind::kTransmission).
+  bool Transmits() const { return (model_->Make<double>()->Kind() & LobeKind::kTransmission) != 0; }
+
   ModelInfo info_;
   std::unique_ptr<Model> model_;
 };
@@ -67,6 +70,8 @@ TEST_P(ModelProperties, FiniteAndNonNegative) {
 
   std::vector<Eigen::Vector3d> dirs = EdgeDirections();
   for (int k = 0; k < 40; ++k) dirs.push_back(test::RandomUpperDirection(rng));
+  if (Transmits())
+    for (std::size_t k = 0, n = dirs.size(); k < n; ++k) dirs.push_back(Eigen::Vector3d(dirs[k].x(), dirs[k].y(), -dirs[k].z()));
   int bad = 0;
   for (const auto& p : param_sets) {
     const std::vector<float> pf(p.begin(), p.end());
@@ -93,13 +98,21 @@ TEST_P(ModelProperties, FiniteAndNonNegative) {
   EXPECT_EQ(bad, 0);
 }
 
+// Zero below the horizon, except for a transmitting model, which is zero on
+// the horizon only and refracts straight through (wi = -wo) at its defaults.
 TEST_P(ModelProperties, BelowHorizonIsZero) {
   const auto b = model_->Make<double>();
   const std::vector<double> p = info_.Defaults();
   const Eigen::Vector3d up(0.3, 0.1, 0.9), down(0.3, 0.1, -0.9), horizon(1, 0, 0);
+  EXPECT_TRUE((b->Eval(p.data(), horizon, up.normalized()) == 0).all());
+  EXPECT_TRUE((b->Eval(p.data(), up.normalized(), horizon) == 0).all());
+  if (Transmits()) {
+    EXPECT_TRUE((b->Eval(p.data(), up.normalized(), -up.normalized()) > 0).all());
+    EXPECT_TRUE((b->Eval(p.data(), -up.normalized(), up.normalized()) > 0).all());
+    return;
+  }
   EXPECT_TRUE((b->Eval(p.data(), up.normalized(), down.normalized()) == 0).all());
   EXPECT_TRUE((b->Eval(p.data(), down.normalized(), up.normalized()) == 0).all());
-  EXPECT_TRUE((b->Eval(p.data(), horizon, up.normalized()) == 0).all());
 }
 
 // The aperture quadrature's batched inner sum is the weighted sum of Eval,
@@ -142,7 +155,21 @@ TEST_P(ModelProperties, ReciprocalWhereClaimed) {
       if (scale > 0) worst = std::max(worst, (a - c).abs().maxCoeff() / scale);
     }
   }
-  if (info_.reciprocal) {
+  if (Transmits()) {
+    // Generalised reciprocity over the sphere: f(wi, wo) eta_r^2 = f(wo, wi).
+    double worst_generalised = 0;
+    for (int n = 0; n < 2000; ++n) {
+      const std::vector<double> p = n == 0 ? info_.Defaults() : test::RandomParams(info_, rng);
+      Eigen::Vector3d wi = test::RandomUpperDirection(rng), wo = test::RandomUpperDirection(rng);
+      if (n % 2) wi.z() = -wi.z();
+      if (n % 4 > 1) wo.z() = -wo.z();
+      const double r = b->RelativeIndex(p.data(), wi, wo);
+      const Rgb<double> a = b->Eval(p.data(), wi, wo) * (r * r), c = b->Eval(p.data(), wo, wi);
+      const double scale = std::max(a.abs().maxCoeff(), c.abs().maxCoeff());
+      if (scale > 1e-290) worst_generalised = std::max(worst_generalised, (a - c).abs().maxCoeff() / scale);  // subnormals carry no relative precision
+    }
+    EXPECT_LE(worst_generalised, 1e-12) << info_.name << ": generalised reciprocity";
+  } else if (info_.reciprocal) {
     EXPECT_LE(worst, 1e-12) << info_.name << " claims reciprocity";
   } else if (info_.settings.empty()) {
     // An analytic model that says it is not reciprocal must show it; a
@@ -205,11 +232,16 @@ TEST_P(ModelProperties, SamplingMatchesPdf) {
   const auto b = model_->Make<double>();
   if (!b->CanSample()) GTEST_SKIP() << info_.name << " provides no Sample/Pdf";
   const std::vector<double> p = info_.Defaults();
-  // Sidak-corrected 1 % level over the whole family: every model, three wo.
-  const double tests = 3.0 * RegisteredModelInfos().size();
+  // Sidak-corrected 1 % level over the whole family: every model, three wo
+  // on each side.
+  const double tests = 6.0 * RegisteredModelInfos().size();
   const double alpha = 1 - std::pow(1 - 0.01, 1.0 / tests);
+  // A transmitting model samples the sphere, from either side (CheckSampling
+  // bins the sphere for it).
+  for (double side : Transmits() ? std::vector<double>{1.0, -1.0} : std::vector<double>{1.0})
   for (double theta_o_deg : {0.0, 45.0, 80.0}) {
-    const Eigen::Vector3d wo = test::DirectionFromAngles(theta_o_deg * kPi / 180, 0.4);
+    Eigen::Vector3d wo = test::DirectionFromAngles(theta_o_deg * kPi / 180, 0.4);
+    wo.z() *= side;
     validate::SamplingCheckOptions opt;
     opt.samples = 100000;
     opt.seed = 17;
@@ -218,7 +250,7 @@ TEST_P(ModelProperties, SamplingMatchesPdf) {
     EXPECT_EQ(r.nonfinite, 0);
     EXPECT_EQ(r.pdf_mismatch, 0) << "Sample's pdf differs from Pdf()";
     EXPECT_GT(r.valid_fraction, 0.05);
-    // The pdf integrates over the upper hemisphere to the sampled fraction.
+    // The pdf integrates over the upper hemisphere (sphere) to the sampled fraction.
     EXPECT_NEAR(r.pdf_integral, r.valid_fraction, 4 * std::sqrt(r.valid_fraction / opt.samples) + 2e-3);
     EXPECT_LE(r.pdf_integral, 1 + 2e-3);
     EXPECT_GT(r.p_value, alpha) << "chi2 " << r.chi2 << " dof " << r.dof;

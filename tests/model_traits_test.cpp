@@ -61,7 +61,17 @@ TEST(ModelTraits, EveryModelDeclaresItsKind) {
     const auto b = MakeModel(info).Make<double>();
     const unsigned k = b->Kind();
     EXPECT_NE(k & (LobeKind::kDiffuse | LobeKind::kGlossy | LobeKind::kSpecular), 0u) << info.name;
-    EXPECT_EQ(k & LobeKind::kTransmission, 0u) << info.name << ": no registered model transmits";
+    // Transmission declared iff the model scatters through the surface: f
+    // across it, straight through and at three tilted pairs, at the defaults.
+    bool through = false;
+    for (const auto& [wi, wo] : {std::pair<Eigen::Vector3d, Eigen::Vector3d>{{0.3, 0.1, 0.9}, {-0.3, -0.1, -0.9}},
+                                 {{0.0, 0.0, 1.0}, {0.2, 0.0, -0.98}},
+                                 {{0.6, 0.0, 0.8}, {-0.2, 0.1, -0.97}},
+                                 {{0.0, 0.5, -0.87}, {0.0, -0.7, 0.71}}}) {
+      const std::vector<double> d = info.Defaults();
+      through = through || (b->Eval(d.data(), wi.normalized(), wo.normalized()) > 0).any();
+    }
+    EXPECT_EQ((k & LobeKind::kTransmission) != 0, through) << info.name << ": transmission iff f across the surface";
     for (const std::vector<double>& p : Points(info))
       EXPECT_EQ(b->Width(p.data()).Any(), (k & LobeKind::kGlossy) != 0) << info.name << ": glossy iff a width";
   }

@@ -58,6 +58,15 @@ AlbedoValue AlbedoAtMu(const Bxdf<double>& bxdf, const double* p, double mu, con
   mu = std::max(mu, GrazingMu(shape));
   mu = std::min(mu, 1.0);
   const Eigen::Vector3d wo(std::sqrt(std::max(0.0, (1 - mu) * (1 + mu))), 0, mu);
+  if (bxdf.Kind() & LobeKind::kTransmission) {
+    const ScatteredEstimate e = ScatteredPower(bxdf, p, wo, o.Integrate(shape));
+    switch (o.part) {
+      case AlbedoQuadratureOptions::Part::kReflected: return e.reflected;
+      case AlbedoQuadratureOptions::Part::kTransmitted: return e.transmitted;
+      case AlbedoQuadratureOptions::Part::kTotal: break;
+    }
+    return e.Total();
+  }
   return DirectionalAlbedo(bxdf, p, wo, Method::kAdaptive, o.Integrate(shape));
 }
 

@@ -46,6 +46,12 @@ struct AlbedoQuadratureOptions {
   // vector of two nearly opposite tangential components) is above the
   // tolerance and refinement cannot converge; the error estimate says so.
   std::int64_t max_evals = 1000000;
+  // A transmitting model (LobeKind::kTransmission) tabulates the power
+  // scattered from light arriving along wo (ScatteredPower): the reflected
+  // part E_R, the transmitted part E_T, or their sum E_R + E_T (<= 1). The
+  // inside of the interface is the outside of the model with 1 / eta, so an
+  // eta axis across 1 covers both sides. Other models ignore it (E).
+  enum class Part { kTotal, kReflected, kTransmitted } part = Part::kTotal;
   // The same as options of the adaptive rule of validate/integrators.h.
   IntegrateOptions Integrate(const LobeShape& shape) const {
     IntegrateOptions o;

@@ -83,10 +83,30 @@ CheckResult CheckPlausibility(const Bxdf<double>& bxdf, const double* p, const C
   const auto t0 = std::chrono::steady_clock::now();
   CheckResult r;
 
+  // A transmitting model scatters over the whole sphere: its pairs, light
+  // directions and sampled directions take both sides, and reciprocity is
+  // the generalised one, f(wi, wo) eta_r^2 = f(wo, wi), eta_r = RelativeIndex.
+  const bool sphere = (bxdf.Kind() & LobeKind::kTransmission) != 0;
+
   // --- reciprocity and values ---
   r.min_value = std::numeric_limits<double>::infinity();
-  for (const auto& [wi, wo] : ReciprocityPairs(o.random_pairs, o.seed)) {
-    const Array3d a = bxdf.Eval(p, wi, wo), b = bxdf.Eval(p, wo, wi);
+  std::vector<std::pair<Vector3d, Vector3d>> pairs = ReciprocityPairs(o.random_pairs, o.seed);
+  if (sphere) {
+    const auto below = [](Vector3d w) {
+      w.z() = -w.z();
+      return w;
+    };
+    const std::size_t n = pairs.size();
+    for (std::size_t k = 0; k < n; ++k) {
+      const auto [wi, wo] = pairs[k];
+      pairs.emplace_back(below(wi), wo);
+      pairs.emplace_back(wi, below(wo));
+      pairs.emplace_back(below(wi), below(wo));
+    }
+  }
+  for (const auto& [wi, wo] : pairs) {
+    const double eta_r = sphere ? bxdf.RelativeIndex(p, wi, wo) : 1.0;
+    const Array3d a = bxdf.Eval(p, wi, wo) * (eta_r * eta_r), b = bxdf.Eval(p, wo, wi);
     ++r.pairs_checked;
     bool finite = true;
     for (int c = 0; c < 3; ++c)
@@ -126,13 +146,21 @@ CheckResult CheckPlausibility(const Bxdf<double>& bxdf, const double* p, const C
   io.budget = o.albedo_budget;
   io.abs_tolerance = 1e-8;
   io.rel_tolerance = 1e-9;
+  // mu < 0: the direction below the surface (transmitting models). Their
+  // albedo is the power scattered over the sphere from light arriving
+  // along the direction (ScatteredPower); for a reciprocal reflection
+  // model that is E(wo).
   struct Sample {
     double mu, phi, value, error;
     Array3d channels;
     bool tightened = false;  // integrated again with the larger budget
   };
+  const auto directional = [&](double mu, double phi, const IntegrateOptions& opt) {
+    if (sphere) return ScatteredPower(bxdf, p, FromMu(mu, phi), opt).Total();
+    return DirectionalAlbedo(bxdf, p, FromMu(mu, phi), Method::kAdaptive, opt);
+  };
   const auto albedo = [&](double mu, double phi) {
-    const Estimate e = DirectionalAlbedo(bxdf, p, FromMu(mu, phi), Method::kAdaptive, io);
+    const Estimate e = directional(mu, phi, io);
     ++r.albedo_evaluations;
     int c;
     const double v = e.value.maxCoeff(&c);
@@ -144,7 +172,7 @@ CheckResult CheckPlausibility(const Bxdf<double>& bxdf, const double* p, const C
     for (int k = 1; k < 8; ++k) phis.push_back(k * kPi / 8);
   Sample best{1, 0, -std::numeric_limits<double>::infinity(), 0, Array3d::Zero()};
   std::size_t best_i = 0;
-  double best_phi = 0;
+  double best_phi = 0, best_side = 1;
   r.albedo_max_per_channel = Array3d::Constant(-std::numeric_limits<double>::infinity());
   std::vector<Sample> searched;  // every albedo evaluated, for the verdict
   const auto take = [&](const Sample& s) {
@@ -152,17 +180,19 @@ CheckResult CheckPlausibility(const Bxdf<double>& bxdf, const double* p, const C
     if (s.value > best.value) best = s;
     searched.push_back(s);
   };
-  for (double phi : phis)
-    for (std::size_t i = 0; i < mus.size(); ++i) {
-      const Sample s = albedo(mus[i], phi);
-      if (s.value > best.value) {
-        best_i = i;
-        best_phi = phi;
+  for (double side : sphere ? std::vector<double>{1.0, -1.0} : std::vector<double>{1.0})
+      for (double phi : phis)
+      for (std::size_t i = 0; i < mus.size(); ++i) {
+        const Sample s = albedo(side * mus[i], phi);
+        if (s.value > best.value) {
+          best_i = i;
+          best_phi = phi;
+          best_side = side;
+        }
+        take(s);
+        if (i == 0) r.albedo_at_normal = std::max(r.albedo_at_normal, s.value);
+        if (i + 1 == mus.size()) r.albedo_at_grazing = std::max(r.albedo_at_grazing, s.value);
       }
-      take(s);
-      if (i == 0) r.albedo_at_normal = std::max(r.albedo_at_normal, s.value);
-      if (i + 1 == mus.size()) r.albedo_at_grazing = std::max(r.albedo_at_grazing, s.value);
-    }
   // Golden-section refinement in log(mu) between the grid neighbours of the
   // best node, then in phi for models that are not rotation invariant.
   const double golden = 0.5 * (std::sqrt(5.0) - 1);
@@ -192,7 +222,7 @@ CheckResult CheckPlausibility(const Bxdf<double>& bxdf, const double* p, const C
     }
   };
   golden_max(std::log(mus[std::min(best_i + 1, mus.size() - 1)]), std::log(mus[best_i > 0 ? best_i - 1 : 0]),
-             o.golden_steps, 1e-6, [&](double x) { return albedo(std::exp(x), best_phi); });
+             o.golden_steps, 1e-6, [&](double x) { return albedo(best_side * std::exp(x), best_phi); });
   if (!r.rotation_invariant) {
     const double mu = best.mu;
     golden_max(best.phi - kPi / 8, best.phi + kPi / 8, o.golden_steps / 2, 0.0,
@@ -214,7 +244,7 @@ CheckResult CheckPlausibility(const Bxdf<double>& bxdf, const double* p, const C
     IntegrateOptions tight = io;
     tight.budget = io.budget * o.tighten_factor;
     for (Sample* s : open) {
-      const Estimate e = DirectionalAlbedo(bxdf, p, FromMu(s->mu, s->phi), Method::kAdaptive, tight);
+      const Estimate e = directional(s->mu, s->phi, tight);
       ++r.albedo_evaluations;
       ++r.albedo_tightened;
       int c;
@@ -265,6 +295,8 @@ CheckResult CheckPlausibility(const Bxdf<double>& bxdf, const double* p, const C
     for (double deg : {0.0, 30.0, 60.0, 80.0}) wos.push_back(Spherical(deg * kPi / 180, 0.0));
     if (!r.rotation_invariant)
       for (double deg : {30.0, 80.0}) wos.push_back(Spherical(deg * kPi / 180, 1.0));
+    if (sphere)
+      for (std::size_t k = 0, n = wos.size(); k < n; ++k) wos.push_back(Vector3d(wos[k].x(), wos[k].y(), -wos[k].z()));
     SamplingCheckOptions so;
     so.samples = o.sampling_samples;
     so.seed = o.seed;

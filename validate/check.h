@@ -21,6 +21,14 @@
 //    rotated azimuth for anisotropic models), Sidak-corrected family p-value
 //    1 - (1 - p_min)^m >= 0.01. Skipped (and said so) for lobes narrower than
 //    kMinSampledLobeWidth.
+//  - transmitting models (Kind() has LobeKind::kTransmission) over the whole
+//    sphere: the reciprocity pairs also with wi, wo or both below the
+//    surface, compared as f(wi, wo) eta_r^2 against f(wo, wi), eta_r =
+//    Bxdf::RelativeIndex (Veach's generalised reciprocity); the values on
+//    both sides; energy as the power scattered from light along w over the
+//    sphere (ScatteredPower: reflected + transmitted <= 1 + 1e-6), searched
+//    over w on both sides (albedo_max_at_mu < 0: light from below); the
+//    sampling directions also below, binned over the sphere.
 //  - microfacet models: int D(m) cos(theta_m) dm = 1 and, with a Smith G1,
 //    the weak white furnace int D G1(wo, m) max(0, wo.m) / cos(theta_o) dm = 1
 //    (Heitz 2014 eq. 14 and 18), both within 1e-6 + their error estimates.
@@ -61,7 +69,7 @@ struct CheckResult {
   // Energy conservation.
   double albedo_max = 0;        // max over wo and channels
   double albedo_max_error = 0;  // error estimate of that value
-  double albedo_max_at_mu = 1;
+  double albedo_max_at_mu = 1;  // < 0: a direction below the surface (transmitting models)
   double albedo_max_at_phi = 0;
   Eigen::Array3d albedo_max_per_channel = Eigen::Array3d::Zero();
   double albedo_at_grazing = 0;  // max channel at the smallest mu searched

@@ -815,4 +815,68 @@ Estimate IntegrateHemisphere(const std::function<Array3d(const Vector3d&)>& g, M
   return Run(pb, method, options);
 }
 
+namespace {
+
+// The model seen from light on one side: Eval(a, b) = f(S(b), S(a)), S
+// turning the upper side to that side (the identity for the upper side).
+class LightSideView final : public Bxdf<double> {
+ public:
+  LightSideView(const Bxdf<double>& inner, bool below) : inner_(inner), below_(below) {}
+  const ModelInfo& Info() const override { return inner_.Info(); }
+  Array3d Eval(const double* p, const Vector3d& wi, const Vector3d& wo) const override {
+    return inner_.Eval(p, Side(wo), Side(wi));
+  }
+  BsdfSample<double> Sample(const double*, const Vector3d&, double, double) const override { return {}; }
+  double Pdf(const double*, const Vector3d&, const Vector3d&) const override { return 0; }
+  double SampleWeight(const double* p) const override { return inner_.SampleWeight(p); }
+  bool CanSample() const override { return false; }
+  unsigned Kind() const override { return inner_.Kind() & ~unsigned(LobeKind::kTransmission); }
+  LobeWidth Width(const double* p) const override { return inner_.Width(p); }
+
+ private:
+  Vector3d Side(const Vector3d& w) const { return below_ ? Vector3d(w.x(), w.y(), -w.z()) : w; }
+  const Bxdf<double>& inner_;
+  bool below_;
+};
+
+Estimate Sum(const Estimate& a, const Estimate& b) {
+  Estimate e;
+  e.value = a.value + b.value;
+  e.error = a.error + b.error;
+  e.evals = a.evals + b.evals;
+  e.seconds = a.seconds + b.seconds;
+  return e;
+}
+
+}  // namespace
+
+Estimate ScatteredEstimate::Total() const { return Sum(reflected, transmitted); }
+
+ScatteredEstimate ScatteredPower(const Bxdf<double>& bxdf, const double* params, const Vector3d& w_in,
+                                 const IntegrateOptions& options) {
+  if (!(w_in.norm() > 0) || !w_in.allFinite())
+    throw std::invalid_argument("ScatteredPower: w must be a finite non-zero direction");
+  const Vector3d w = w_in.normalized();
+  ScatteredEstimate out;
+  if (w.z() == 0) return out;  // f = 0 on the horizon
+  const bool below = w.z() < 0;
+  const Vector3d w_up(w.x(), w.y(), std::abs(w.z()));
+  IntegrateOptions ro = options;
+  ro.shape.reset();  // the view's lobe facts, not the model's
+  out.reflected = DirectionalAlbedo(LightSideView(bxdf, below), params, w_up, Method::kAdaptive, ro);
+  if (!(bxdf.Kind() & LobeKind::kTransmission)) return out;
+  // v on the other side of the surface for u in the upper hemisphere.
+  const auto other = [below](const Vector3d& u) { return Vector3d(u.x(), u.y(), below ? u.z() : -u.z()); };
+  const auto g = [&](const Vector3d& u) -> Array3d { return bxdf.Eval(params, w, other(u)) * u.z(); };
+  // Snell: n_w sin(theta_w) = n_v sin(theta_v), RelativeIndex(w, v) = n_w / n_v.
+  const double k = bxdf.RelativeIndex(params, w, other(Vector3d::UnitZ()));
+  const double s2 = k * k * (1 - w.z() * w.z());
+  Vector3d peak = Vector3d::Zero();
+  if (s2 < 1) peak = Vector3d(-k * w.x(), -k * w.y(), std::sqrt(1 - s2));
+  const LobeWidth lobe = bxdf.Width(params);
+  out.transmitted =
+      IntegrateHemisphere(g, Method::kAdaptive, options, peak, lobe.Any() ? std::min(1.0, lobe.Min()) : 0.0);
+  return out;
+}
+
 }  // namespace brdfkit::validate

@@ -96,4 +96,23 @@ Estimate IntegrateHemisphere(const std::function<Eigen::Array3d(const Eigen::Vec
                              const IntegrateOptions& options, const Eigen::Vector3d& peak = Eigen::Vector3d::Zero(),
                              double width = 0, double width_y = 0, const Eigen::Vector3d& cut = Eigen::Vector3d::Zero());
 
+// Power scattered over the sphere from light arriving along w (either side
+// of the surface), by the adaptive rule, for a model that transmits
+// (LobeKind::kTransmission):
+//   reflected   = int over w's side of f(w, v) |v.z| dv: DirectionalAlbedo of
+//                 the model with w and v turned to the upper side and its
+//                 arguments swapped (the half-vector rule, exact for any f);
+//   transmitted = int over the other side: IntegrateHemisphere with the peak
+//                 at w refracted through the macro surface (Snell with
+//                 Bxdf::RelativeIndex), none past the critical angle.
+// Energy conservation is reflected + transmitted <= 1 for every w. For a
+// model that does not transmit, transmitted is 0 and reflected is E(w) when
+// it is reciprocal.
+struct ScatteredEstimate {
+  Estimate reflected, transmitted;
+  Estimate Total() const;
+};
+ScatteredEstimate ScatteredPower(const Bxdf<double>& bxdf, const double* params, const Eigen::Vector3d& w,
+                                 const IntegrateOptions& options = {});
+
 }  // namespace brdfkit::validate

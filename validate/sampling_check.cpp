@@ -1,5 +1,6 @@
 #include "validate/sampling_check.h"
 
+#include <algorithm>
 #include <cmath>
 #include <random>
 #include <stdexcept>
@@ -53,10 +54,14 @@ SamplingCheckResult CheckSampling(const Bxdf<double>& bxdf, const double* params
   std::vector<double> expected(static_cast<std::size_t>(nt) * np, 0.0);
   std::vector<double> observed(expected.size(), 0.0);
   const GaussLegendre gl(o.quadrature);
+  // A transmitting model scatters over the whole sphere: the bins span
+  // cos(theta) in [-1, 1] instead of [0, 1].
+  const bool sphere = (bxdf.Kind() & LobeKind::kTransmission) != 0;
+  const double c_lo = sphere ? -1.0 : 0.0;
 
   // Expected probability per bin: integrate the pdf over d(cos theta) d(phi).
   for (int i = 0; i < nt; ++i) {
-    const double c0 = double(i) / nt, c1 = double(i + 1) / nt;
+    const double c0 = c_lo + (1 - c_lo) * i / nt, c1 = c_lo + (1 - c_lo) * (i + 1) / nt;
     for (int j = 0; j < np; ++j) {
       const double p0 = 2 * kPi * j / np, p1 = 2 * kPi * (j + 1) / np;
       double sum = 0;
@@ -87,12 +92,12 @@ SamplingCheckResult CheckSampling(const Bxdf<double>& bxdf, const double* params
     }
     const double pdf = bxdf.Pdf(params, wo, s.wi);
     if (std::abs(pdf - s.pdf) > 1e-6 * std::max(pdf, s.pdf)) ++r.pdf_mismatch;
-    if (s.wi.z() <= 0) continue;
+    if (sphere ? s.wi.z() == 0 : s.wi.z() <= 0) continue;
     ++valid;
-    const double c = std::min(s.wi.z(), 1.0);
+    const double c = std::clamp(s.wi.z(), c_lo, 1.0);
     double phi = std::atan2(s.wi.y(), s.wi.x());
     if (phi < 0) phi += 2 * kPi;
-    const int i = std::min(nt - 1, static_cast<int>(c * nt));
+    const int i = std::min(nt - 1, static_cast<int>((c - c_lo) / (1 - c_lo) * nt));
     const int j = std::min(np - 1, static_cast<int>(phi / (2 * kPi) * np));
     observed[static_cast<std::size_t>(i) * np + j] += 1;
   }

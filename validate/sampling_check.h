@@ -1,7 +1,8 @@
 // Sampling consistency of a model's Sample/Pdf: the pdf's integral over the
-// upper hemisphere against the fraction of valid samples, and a chi-square
-// goodness-of-fit test of sampled directions against the pdf on equal-area
-// (cos theta, phi) bins, cells with small expected counts pooled (the test
+// upper hemisphere (over the whole sphere for a model whose Kind() has
+// LobeKind::kTransmission) against the fraction of valid samples, and a
+// chi-square goodness-of-fit test of sampled directions against the pdf on
+// equal-area (cos theta, phi) bins, cells with small expected counts pooled (the test
 // used by pbrt-v4 and Mitsuba 3).
 #pragma once
 
@@ -22,7 +23,7 @@ struct SamplingCheckOptions {
 };
 
 struct SamplingCheckResult {
-  double pdf_integral = 0;        // int over the upper hemisphere of Pdf(wo, wi) dwi
+  double pdf_integral = 0;        // int over the upper hemisphere (sphere: transmitting models) of Pdf(wo, wi) dwi
   double valid_fraction = 0;      // share of samples returned valid
   double chi2 = 0;
   int dof = 0;

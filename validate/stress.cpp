@@ -165,6 +165,9 @@ void Sweep(const Model& model, const std::vector<Point>& points, const std::vect
   const std::unique_ptr<Bxdf<double>> bd = std::is_same_v<T, float> ? model.Make<double>() : nullptr;
   const std::size_t n = info.PackedSize();
   const std::size_t m = dirs.size();
+  // A transmitting model scatters to both sides: only the horizon itself
+  // must give zero, and reciprocity is the generalised one.
+  const bool sphere = (b->Kind() & LobeKind::kTransmission) != 0;
   std::vector<Vec3<T>> dt(m);
   std::vector<Eigen::Vector3d> dd(m);  // the directions as T rounds them
   for (std::size_t k = 0; k < m; ++k) {
@@ -215,7 +218,7 @@ void Sweep(const Model& model, const std::vector<Point>& points, const std::vect
             } else if (vd[c] < 0) {
               ++row.negative_count;
               fail(pt, "negative value", i, o, vd);
-            } else if (vd[c] != 0 && !(dd[i].z() > 0 && dd[o].z() > 0)) {
+            } else if (vd[c] != 0 && (sphere ? dd[i].z() == 0 || dd[o].z() == 0 : !(dd[i].z() > 0 && dd[o].z() > 0))) {
               ++row.horizon_nonzero_count;
               fail(pt, "non-zero value at or below the horizon", i, o, vd);
             }
@@ -237,11 +240,13 @@ void Sweep(const Model& model, const std::vector<Point>& points, const std::vect
           }
         }
     }
-    if (info.reciprocal)
+    if (info.reciprocal || sphere)
       for (std::size_t i = 0; i < m; ++i)
         for (std::size_t o = i + 1; o < m; ++o)
           for (int c = 0; c < 3; ++c) {
-            const double a = f[i * m + o][c], r = f[o * m + i][c];
+            // f(wi, wo) eta_r^2 = f(wo, wi) (eta_r = 1 for a reflection model).
+            const double eta_r = sphere ? double(Value(b->RelativeIndex(p.data(), dt[i], dt[o]))) : 1.0;
+            const double a = f[i * m + o][c] * eta_r * eta_r, r = f[o * m + i][c];
             if (std::isfinite(a) && std::isfinite(r))
               row.reciprocity_max_rel_error = std::max(row.reciprocity_max_rel_error, RelDiff(a, r, kStressValueFloor));
           }

@@ -19,6 +19,10 @@
 // -1e-6, -0.5} at azimuths 0, 2.1, pi and 2.1 + pi, all pairs (wi = wo, wi
 // mirrored about the normal, opposite sides of the surface included) plus
 // the exact normal against each and the tangential pairs at mu = 1e-12.
+// A transmitting model (LobeKind::kTransmission) may be non-zero below the
+// surface (only the horizon itself counts as a failure there) and its
+// reciprocity error is that of f(wi, wo) eta_r^2 = f(wo, wi), eta_r =
+// Bxdf::RelativeIndex.
 // Sampling: Sample and Pdf at every wo with u in {0, 1e-12, 0.5, 1 - 1e-16}.
 // Bounds: a value one ulp past each bound, and NaN, must be rejected by
 // ValidateParams (the run-time check every entry point uses).
@@ -47,10 +51,10 @@ struct StressRow {
   std::int64_t evaluations = 0;      // f_r evaluations (each RGB)
   std::int64_t nonfinite_count = 0;  // values (channels) NaN or Inf
   std::int64_t negative_count = 0;   // values (channels) < 0
-  std::int64_t horizon_nonzero_count = 0;  // values != 0 with wi or wo at or below the horizon
+  std::int64_t horizon_nonzero_count = 0;  // values != 0 with wi or wo at or below the horizon (on it: transmitting models)
   std::int64_t nonfinite_derivative_count = 0;  // jet: derivative components not finite where the value is
   std::int64_t sample_failures = 0;  // Sample/Pdf: a non-finite or negative pdf, a non-unit wi, pdf mismatch
-  double reciprocity_max_rel_error = 0;  // reciprocal models only; 0 otherwise (floor kStressValueFloor)
+  double reciprocity_max_rel_error = 0;  // reciprocal and transmitting (generalised) models; 0 otherwise (floor kStressValueFloor)
   double float_double_max_rel_diff = 0;  // float row: against double at the same float inputs
   std::string worst_float_case;      // where that difference occurred
   std::string first_failure;         // first non-finite/negative case, empty when none
