@@ -242,11 +242,16 @@ SynthResult Synthesize(const Instrument& inst, const Model& model, const std::ve
 
 SynthResult Synthesize(const Instrument& inst, const Model& model, const std::vector<double>& params,
                        std::uint64_t seed, ExpandedPlan plan, const SynthProgress& progress) {
+  return Synthesize(inst, *model.Make<double>(), params, seed, std::move(plan), progress);
+}
+
+SynthResult Synthesize(const Instrument& inst, const Bxdf<double>& model, const std::vector<double>& params,
+                       std::uint64_t seed, ExpandedPlan plan, const SynthProgress& progress) {
   const auto start = std::chrono::steady_clock::now();
   ValidateParams(model.Info(), params);
   SynthResult result;
   result.plan = std::move(plan);
-  const std::unique_ptr<Bxdf<double>> bxdf = model.Make<double>();
+  const Bxdf<double>* const bxdf = &model;
 
   const OrderChoice choice = ChooseApertureOrder(inst, *bxdf, params.data(), result.plan);
   result.report.order = choice.order;

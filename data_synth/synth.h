@@ -98,6 +98,10 @@ SynthResult Synthesize(const Instrument& inst, const Model& model, const std::ve
 // As above on an already expanded plan.
 SynthResult Synthesize(const Instrument& inst, const Model& model, const std::vector<double>& params,
                        std::uint64_t seed, ExpandedPlan plan, const SynthProgress& progress = {});
+// As above for a model given as an evaluator (one outside the registry, such
+// as a Python function).
+SynthResult Synthesize(const Instrument& inst, const Bxdf<double>& model, const std::vector<double>& params,
+                       std::uint64_t seed, ExpandedPlan plan, const SynthProgress& progress = {});
 
 // Pointing error of one arm: a Gaussian tangent offset (std `sigma` along
 // e_theta and e_phi) applied through the exponential map of the sphere.

@@ -410,8 +410,8 @@ T Robust(Loss loss, double a, const T& r) {
 
 class Engine {
  public:
-  Engine(const Model& model, const Options& o, double loss_scale)
-      : model_(model), metric_(o.metric), loss_(o.loss), loss_scale_(loss_scale) {
+  Engine(const Evaluators& model, const Options& o, double loss_scale)
+      : metric_(o.metric), loss_(o.loss), loss_scale_(loss_scale) {
     const ModelInfo& info = model.Info();
     n_ = info.PackedSize();
     for (const ParamInfo& p : info.params)
@@ -419,7 +419,7 @@ class Engine {
     if (n_ > 32)
       throw std::invalid_argument("model '" + info.name + "' has " + std::to_string(n_) +
                                   " packed parameters; fitting supports at most 32");
-    b_ = model.Make<double>();
+    b_ = model.MakeDouble();
     // Derivative slots: one per scalar parameter and one per colour
     // parameter, shared by its r, g, b slots. Channel c of f_r depends only
     // on slot c of each colour parameter (the models declare it), so the shared
@@ -440,10 +440,10 @@ class Engine {
       n_slots_ = n_;
     }
     jet_ = n_slots_ <= 4 ? 4 : n_slots_ <= 8 ? 8 : n_slots_ <= 16 ? 16 : 32;
-    if (jet_ == 4) b4_ = MakeJet4(model);
-    if (jet_ == 8) b8_ = MakeJet8(model);
-    if (jet_ == 16) b16_ = MakeJet16(model);
-    if (jet_ == 32) b32_ = MakeJet32(model);
+    if (jet_ == 4) b4_ = model.MakeJet4();
+    if (jet_ == 8) b8_ = model.MakeJet8();
+    if (jet_ == 16) b16_ = model.MakeJet16();
+    if (jet_ == 32) b32_ = model.MakeJet32();
     if (o.instrument) {
       int order = o.aperture_order > 0 ? o.aperture_order : o.instrument->quadrature.order;
       if (order <= 0) order = 3;  // automatic order of the synthesiser: 3 reaches ~1e-6 for 1-degree cones
@@ -543,7 +543,6 @@ class Engine {
     return true;
   }
 
-  Model model_;
   Metric metric_;
   Loss loss_;
   double loss_scale_;
@@ -816,13 +815,13 @@ double MetricRmse(const Model& model, const std::vector<double>& params, const D
                   const Options& options) {
   const Selection sel = Select(data, options);
   const Prepared d = Prepare(data, sel.index, options);
-  const Engine e(model, options, 1.0);
+  const Engine e(ModelEvaluators(model), options, 1.0);
   return Rmse(e, d, e.ToInternal(params), options.num_threads);
 }
 
 struct ResidualBlocks::Impl {
   Impl(const Model& model, const Dataset& data, const Options& o, double loss_scale)
-      : engine(model, o, loss_scale), prepared(Prepare(data, Select(data, o).index, o)) {
+      : engine(ModelEvaluators(model), o, loss_scale), prepared(Prepare(data, Select(data, o).index, o)) {
     const std::size_t chunk = std::max<std::size_t>(1, o.chunk);
     for (std::size_t b = 0; b < prepared.size(); b += chunk)
       blocks.push_back(std::make_unique<ChunkCost>(&engine, &prepared, b, std::min(prepared.size(), b + chunk)));
@@ -842,6 +841,12 @@ std::vector<double> ResidualBlocks::ToInternal(const std::vector<double>& params
 }
 
 Result Fit(const Model& model, const Dataset& data, const Options& options) {
+  Result res = Fit(ModelEvaluators(model), data, options);
+  res.model = model;
+  return res;
+}
+
+Result Fit(const Evaluators& model, const Dataset& data, const Options& options) {
   // More worker threads than hardware threads only cost memory and start-up
   // (a count such as 100000 would exhaust the process's thread limit).
   Options o = options;
@@ -852,7 +857,6 @@ Result Fit(const Model& model, const Dataset& data, const Options& options) {
 
   const ModelInfo& info = model.Info();
   Result res;
-  res.model = model;
   res.metric = o.metric;
   res.missing = data.missing;
   res.packed_names = PackedNames(info);

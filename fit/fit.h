@@ -60,6 +60,8 @@ struct Instrument;
 
 namespace brdfkit::fit {
 
+class Evaluators;  // fit/jet_models.h
+
 enum class Metric { kL2, kRelative, kCosine, kLog, kCbrt };
 enum class Loss { kNone, kHuber, kCauchy };
 
@@ -203,6 +205,9 @@ struct Result {
 };
 
 Result Fit(const Model& model, const Dataset& data, const Options& options);
+// The same for a model given by its evaluators (one outside the registry,
+// such as a Python function); Result::model is then left empty.
+Result Fit(const Evaluators& model, const Dataset& data, const Options& options);
 
 // Names of the packed slots: colour parameters get .r, .g, .b.
 std::vector<std::string> PackedNames(const ModelInfo& info);

@@ -19,4 +19,33 @@ std::unique_ptr<Bxdf<Jet<8>>> MakeJet8(const Model& model);
 std::unique_ptr<Bxdf<Jet<16>>> MakeJet16(const Model& model);
 std::unique_ptr<Bxdf<Jet<32>>> MakeJet32(const Model& model);
 
+// What the fitter needs of a model: its parameter table and its evaluators
+// on double and on the Jet sizes it differentiates with. ModelEvaluators
+// serves a registered model; a model outside the registry (a Python
+// function) implements its own.
+class Evaluators {
+ public:
+  virtual ~Evaluators() = default;
+  virtual const ModelInfo& Info() const = 0;
+  virtual std::unique_ptr<Bxdf<double>> MakeDouble() const = 0;
+  virtual std::unique_ptr<Bxdf<Jet<4>>> MakeJet4() const = 0;
+  virtual std::unique_ptr<Bxdf<Jet<8>>> MakeJet8() const = 0;
+  virtual std::unique_ptr<Bxdf<Jet<16>>> MakeJet16() const = 0;
+  virtual std::unique_ptr<Bxdf<Jet<32>>> MakeJet32() const = 0;
+};
+
+class ModelEvaluators final : public Evaluators {
+ public:
+  explicit ModelEvaluators(const Model& model) : model_(model) {}
+  const ModelInfo& Info() const override { return model_.Info(); }
+  std::unique_ptr<Bxdf<double>> MakeDouble() const override;
+  std::unique_ptr<Bxdf<Jet<4>>> MakeJet4() const override;
+  std::unique_ptr<Bxdf<Jet<8>>> MakeJet8() const override;
+  std::unique_ptr<Bxdf<Jet<16>>> MakeJet16() const override;
+  std::unique_ptr<Bxdf<Jet<32>>> MakeJet32() const override;
+
+ private:
+  const Model& model_;
+};
+
 }  // namespace brdfkit::fit

@@ -194,6 +194,11 @@ void SetParam(const ModelInfo& info, const Axis& axis, double value, std::vector
 
 AlbedoTable BuildAlbedoTable(const Model& model, const std::vector<double>& base_params,
                              const AlbedoTableRequest& req) {
+  return BuildAlbedoTable(*model.Make<double>(), model.Spec(), base_params, req);
+}
+
+AlbedoTable BuildAlbedoTable(const Bxdf<double>& model, const std::string& spec,
+                             const std::vector<double>& base_params, const AlbedoTableRequest& req) {
   const auto t_start = std::chrono::steady_clock::now();
   const ModelInfo& info = model.Info();
   ValidateParams(info, base_params);
@@ -201,7 +206,7 @@ AlbedoTable BuildAlbedoTable(const Model& model, const std::vector<double>& base
     throw ModelError("axes: expected mu:N followed by one or two model parameters (e.g. mu:32,alpha:32)");
   if (req.channel < 0 || req.channel > 2) throw ModelError("channel must be 0, 1 or 2");
   AlbedoTable t;
-  t.model = model.Spec();
+  t.model = spec;
   t.base_params = base_params;
   t.params_text = FormatParams(info, base_params);
   t.mu.name = "mu";
@@ -263,7 +268,7 @@ AlbedoTable BuildAlbedoTable(const Model& model, const std::vector<double>& base
   t.E_error.assign(t.E.size(), 0.0);
   t.E_avg.assign(n_points, 0.0);
   t.E_avg_error.assign(n_points, 0.0);
-  const auto bxdf = model.Make<double>();
+  const Bxdf<double>* const bxdf = &model;
   const int ch = req.channel;
 
   // Parameter vectors and lobe shapes per point.

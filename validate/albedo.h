@@ -161,6 +161,10 @@ struct AlbedoTable {
 // outside the parameter bounds.
 AlbedoTable BuildAlbedoTable(const Model& model, const std::vector<double>& base_params,
                              const AlbedoTableRequest& request);
+// The same for a model given as an evaluator (one outside the registry, such
+// as a Python function); spec names it in the table.
+AlbedoTable BuildAlbedoTable(const Bxdf<double>& model, const std::string& spec,
+                             const std::vector<double>& base_params, const AlbedoTableRequest& request);
 
 // The accuracy contract: every entry's error estimate is at most the
 // request's tolerance. An entry that misses it (E, E_avg, or the F = 1

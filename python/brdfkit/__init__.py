@@ -10,16 +10,20 @@ dicts returned here hold what ``--json`` prints) and the same messages
 >>> m.eval(np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 1.0])).shape
 (3,)
 
+A BRDF of one's own, written with numpy, goes into check, albedo_table,
+synth and fit as a :class:`PythonModel`; samples given as arrays as a
+:class:`Tabulated`.
+
 Long calls (check, albedo_table, synth, fit, Model.albedo) release the
 GIL, stop with KeyboardInterrupt on Ctrl-C and take ``threads``.
 """
 
 import os as _os
 
-from ._brdfkit import Model, models
+from ._brdfkit import Model, PythonModel, Tabulated, models
 from . import _brdfkit
 
-__all__ = ["Model", "models", "check", "albedo_table", "synth", "fit", "stress", "read", "write", "FORMATS"]
+__all__ = ["Model", "PythonModel", "Tabulated", "models", "check", "albedo_table", "synth", "fit", "stress", "read", "write", "FORMATS"]
 
 
 def _existing(path, what):
@@ -35,13 +39,15 @@ def check(model, params=None, *, sampling=True, samples=100000, random_pairs=400
 
     Parameters
     ----------
-    model : Model or str
-        A Model, or a model name (then ``params`` gives its values).
+    model : Model, str, PythonModel or Tabulated
+        A Model, a model name or a PythonModel (then ``params`` gives its
+        values), or a Tabulated.
     params : dict or str, optional
-        Parameter values when ``model`` is a name.
+        Parameter values when ``model`` is a name or a PythonModel.
     sampling : bool
-        Run the sampling tests (pdf integral, chi-square); when False the
-        result's ``sampling_note`` says they were not run.
+        Run the sampling tests (pdf integral, chi-square); when False, or
+        for a PythonModel without sample and pdf, the result's
+        ``sampling_note`` says they were not run.
     samples : int
         Samples per direction for the chi-square test.
     random_pairs : int
@@ -68,7 +74,7 @@ def albedo_table(model, params=None, *, axes="mu:32,alpha:32:0.001:1", nodes="un
 
     Parameters
     ----------
-    model : Model or str
+    model : Model, str or PythonModel
     params : dict or str, optional
         Values of the parameters that are not axes.
     axes : str
@@ -109,7 +115,7 @@ def synth(model, params=None, *, instrument=None, seed=0, out=(), threads=0):
 
     Parameters
     ----------
-    model : Model or str
+    model : Model, str, PythonModel or Tabulated
     params : dict or str, optional
     instrument : str, os.PathLike or dict, optional
         Instrument JSON file or its content; default the built-in one.
@@ -139,9 +145,11 @@ def fit(model, data, wo=None, f=None, sigma=None, *, init=None, metric="l2", los
 
     Parameters
     ----------
-    model : Model or str
+    model : Model, str or PythonModel
         A model name or sum (``"lambert+ggx"``), ``"fit:FILE"`` to refine a
-        previous fit, or a Model (its values are the starting point).
+        previous fit, a Model (its values are the starting point), or a
+        PythonModel (its parameter table gives the bounds, the log-scale
+        parameters the multi-start; derivatives by central differences).
     data : str, os.PathLike or array_like
         A CSV table or MERL file, or the array wi (N, 3) with ``wo`` and ``f``.
     wo, f, sigma : array_like, shape (N, 3), optional
@@ -169,7 +177,8 @@ def fit(model, data, wo=None, f=None, sigma=None, *, init=None, metric="l2", los
     dict
         The command line's JSON (model, params, stddev, correlation, cost,
         rmse, iterations, trace, ...) plus packed_names, packed_params,
-        packed_stddev, covariance (numpy) and model_object (the fitted Model).
+        packed_stddev, covariance (numpy) and model_object (the fitted Model;
+        for a PythonModel, the PythonModel itself).
     """
     if isinstance(data, (str, _os.PathLike)):
         data = _existing(data, "data file")

@@ -31,23 +31,54 @@ class Model:
     def albedo(self, wo: ArrayLike, tolerance: float = 1e-6, threads: int = 0) -> np.ndarray:
         """Directional albedo per channel, shape (N, 3) or (3,)."""
 
+class PythonModel:
+    """A BRDF defined by Python functions on numpy arrays (see help(brdfkit.PythonModel))."""
+
+    def __init__(self, eval: Callable[..., ArrayLike],
+                 params: Optional[Mapping[str, Mapping[str, Union[float, str]]]] = None,
+                 sample: Optional[Callable[..., tuple[ArrayLike, ArrayLike]]] = None,
+                 pdf: Optional[Callable[..., ArrayLike]] = None, kind: str = "diffuse+glossy",
+                 width: Union[None, float, Callable[..., Union[float, tuple[float, float]]]] = None,
+                 name: str = "python") -> None:
+        """eval(wi, wo[, params]) -> (N, 3); params {name: {default, lower, upper[, scale, meaning]}};
+        sample(wo, u[, params]) -> (wi, pdf) and pdf(wo, wi[, params]) -> (N,), both or neither."""
+    @property
+    def name(self) -> str: ...
+    @property
+    def params(self) -> list[dict[str, Any]]: ...
+    @property
+    def can_sample(self) -> bool: ...
+
+class Tabulated:
+    """A BRDF given as samples f (N, 3) at direction pairs wi, wo (N, 3); nearest or idw lookup."""
+
+    def __init__(self, wi: ArrayLike, wo: ArrayLike, f: ArrayLike, interp: str = "nearest") -> None: ...
+    @property
+    def size(self) -> int: ...
+    @property
+    def interp(self) -> str: ...
+    def eval(self, wi: ArrayLike, wo: ArrayLike) -> np.ndarray:
+        """The looked-up f_r, shape (N, 3) or (3,)."""
+
+AnyModel = Union[Model, str, PythonModel, Tabulated]
+
 def models() -> list[dict[str, Any]]:
     """The registered models with their parameter tables."""
 
-def check(model: Union[Model, str], params: Params = None, *, sampling: bool = True, samples: int = 100000,
+def check(model: AnyModel, params: Params = None, *, sampling: bool = True, samples: int = 100000,
           random_pairs: int = 4000, seed: int = 1, threads: int = 0) -> dict[str, Any]:
     """Physical plausibility, as ``brdfkit check --json``."""
 
-def albedo_table(model: Union[Model, str], params: Params = None, *, axes: str = "mu:32,alpha:32:0.001:1",
+def albedo_table(model: Union[Model, str, PythonModel], params: Params = None, *, axes: str = "mu:32,alpha:32:0.001:1",
                  nodes: str = "uniform", tolerance: float = 1e-6, accept_error: Optional[float] = None,
                  channel: int = 0, threads: int = 0) -> dict[str, Any]:
     """Albedo tables, as ``brdfkit albedo --json`` (tables as numpy arrays)."""
 
-def synth(model: Union[Model, str], params: Params = None, *, instrument: Union[None, PathArg, dict] = None,
+def synth(model: AnyModel, params: Params = None, *, instrument: Union[None, PathArg, dict] = None,
           seed: int = 0, out: Union[PathArg, Sequence[PathArg]] = (), threads: int = 0) -> dict[str, Any]:
     """A synthetic measurement: the FILE.json content plus arrays wi, wo, f, sigma, valid, saturated."""
 
-def fit(model: Union[Model, str], data: Union[PathArg, ArrayLike], wo: ArrayLike = None, f: ArrayLike = None,
+def fit(model: Union[Model, str, PythonModel], data: Union[PathArg, ArrayLike], wo: ArrayLike = None, f: ArrayLike = None,
         sigma: ArrayLike = None, *, init: Params = None, metric: str = "l2", loss: str = "none",
         solver: str = "dense_qr", max_theta_deg: float = -1.0, threads: int = 2, max_iterations: int = 200,
         starts: int = 5, covariance: bool = True, use_sigma: bool = True,

@@ -5,6 +5,7 @@
 
 #include "brdf/params.h"
 #include "cli/common.h"
+#include "python/src/callable.h"
 #include "python/src/common.h"
 #include "validate/albedo.h"
 
@@ -30,7 +31,7 @@ std::string AssignmentText(const py::handle& key, const py::handle& value) {
 
 }  // namespace
 
-PyModel MakeModel(const std::string& spec, const py::object& params) {
+std::string ParamsText(const py::object& params) {
   std::string text;
   if (params.is_none()) {
   } else if (py::isinstance<py::str>(params)) {
@@ -40,7 +41,11 @@ PyModel MakeModel(const std::string& spec, const py::object& params) {
   } else {
     throw DtypeError("params must be None, a dict or a string name=value,...");
   }
-  cli::ModelArgs args{spec, text};
+  return text;
+}
+
+PyModel MakeModel(const std::string& spec, const py::object& params) {
+  cli::ModelArgs args{spec, ParamsText(params)};
   cli::LoadedModel lm = cli::LoadModel(args);
   PyModel m{lm.model, lm.params, {}, nullptr, nullptr};
   m.params_f.assign(m.params.begin(), m.params.end());

@@ -1,5 +1,6 @@
 // The compiled part of the Python package: brdfkit._brdfkit.
 #include "cli/common.h"
+#include "python/src/callable.h"
 #include "python/src/common.h"
 
 namespace py = pybind11;
@@ -26,5 +27,6 @@ PYBIND11_MODULE(_brdfkit, m) {
     }
   });
   python::BindModels(m);
+  python::BindCallables(m);
   python::BindTools(m);
 }

@@ -12,6 +12,8 @@
 #include "data_synth/synth.h"
 #include "data_synth/table_io.h"
 #include "fit/fit.h"
+#include "fit/jet_models.h"
+#include "python/src/callable.h"
 #include "python/src/common.h"
 #include "validate/albedo.h"
 #include "validate/check.h"
@@ -27,7 +29,7 @@ nlohmann::json FromPython(const py::handle& obj) {
 
 py::dict Check(const py::object& model, const py::object& params, bool sampling, std::int64_t samples,
                int random_pairs, std::uint64_t seed, int threads) {
-  const PyModel m = ModelArgument(model, params);
+  const ToolModel m = ToolModelArgument(model, params);
   if (samples < 1000 || samples > 100000000)
     throw ArgumentError("samples must lie in [1000, 100000000] (got " + std::to_string(samples) + ")");
   if (random_pairs < 1) throw ArgumentError("random_pairs must be at least 1");
@@ -37,19 +39,19 @@ py::dict Check(const py::object& model, const py::object& params, bool sampling,
   o.random_pairs = random_pairs;
   o.seed = seed;
   validate::CheckResult r;
-  RunReleased(threads, [&](const CancelToken& token) {
+  RunTool(m, threads, [&](const CancelToken& token) {
     const CancellableBxdf b(*m.bxdf, token);
     r = validate::CheckPlausibility(b, m.params.data(), o);
   });
   nlohmann::json j = cli::CheckResultJson(r);
-  j["model"] = m.model.Spec();
-  j["params"] = FormatParams(m.model.Info(), m.params);
+  j["model"] = m.spec;
+  j["params"] = FormatParams(m.bxdf->Info(), m.params);
   return ToPython(j);
 }
 
 py::dict AlbedoTableFn(const py::object& model, const py::object& params, const std::string& axes,
                        const std::string& nodes, double tolerance, double accept_error, int channel, int threads) {
-  const PyModel m = ModelArgument(model, params);
+  const ToolModel m = ToolModelArgument(model, params);
   if (nodes != "uniform" && nodes != "gauss")
     throw ArgumentError("nodes must be 'uniform' or 'gauss' (got '" + nodes + "')");
   if (!(tolerance >= 1e-12 && tolerance <= 1e-2))
@@ -61,9 +63,9 @@ py::dict AlbedoTableFn(const py::object& model, const py::object& params, const 
   req.quadrature.abs_tolerance = tolerance;
   req.channel = channel;
   validate::AlbedoTable t;
-  RunReleased(threads, [&](const CancelToken& token) {
+  RunTool(m, threads, [&](const CancelToken& token) {
     req.progress = [&token](std::size_t, std::size_t) { token.ThrowIfCancelled(); };
-    t = validate::BuildAlbedoTable(m.model, m.params, req);
+    t = validate::BuildAlbedoTable(*m.bxdf, m.spec, m.params, req);
   });
   // The tables' contract, as the command line: no table above its tolerance
   // unless a looser one is accepted explicitly.
@@ -86,16 +88,16 @@ synth::Instrument InstrumentArgument(const py::object& instrument) {
 
 py::dict Synth(const py::object& model, const py::object& params, const py::object& instrument,
                std::uint64_t seed, const std::vector<std::string>& out, int threads) {
-  const PyModel m = ModelArgument(model, params);
+  const ToolModel m = ToolModelArgument(model, params);
   const synth::Instrument inst = InstrumentArgument(instrument);
   synth::SynthResult r;
   synth::Provenance prov;
-  prov.model = m.model.Spec();
+  prov.model = m.spec;
   prov.params = m.params;
-  prov.params_text = FormatParams(m.model.Info(), m.params);
+  prov.params_text = FormatParams(m.bxdf->Info(), m.params);
   prov.seed = seed;
-  RunReleased(threads, [&](const CancelToken& token) {
-    r = synth::Synthesize(inst, m.model, m.params, seed,
+  RunTool(m, threads, [&](const CancelToken& token) {
+    r = synth::Synthesize(inst, *m.bxdf, m.params, seed, synth::ExpandPlan(inst.plan),
                           [&token](std::size_t, std::size_t) { token.ThrowIfCancelled(); });
     for (const std::string& path : out) synth::WriteSynthOutput(path, inst, r, prov);
   });
@@ -190,7 +192,10 @@ py::dict Fit(const py::object& model, const py::object& data, const py::object& 
   o.covariance = covariance;
   o.use_sigma = use_sigma;
   Model mm = Model::Parse("lambert");
-  if (py::isinstance<PyModel>(model)) {
+  std::shared_ptr<PythonModel> python;
+  if (py::isinstance<PythonModel>(model)) {
+    python = model.cast<std::shared_ptr<PythonModel>>();
+  } else if (py::isinstance<PyModel>(model)) {
     const PyModel pm = model.cast<PyModel>();
     mm = pm.model;
     if (init.is_none()) o.initial = pm.params;
@@ -203,10 +208,13 @@ py::dict Fit(const py::object& model, const py::object& data, const py::object& 
     } else {
       mm = Model::Parse(spec);
     }
+  } else if (py::isinstance(model, py::module_::import("brdfkit._brdfkit").attr("Tabulated"))) {
+    throw ArgumentError("a Tabulated has no parameters to fit");
   } else {
-    throw DtypeError("model must be a brdfkit.Model or a model name such as 'lambert+ggx'");
+    throw DtypeError("model must be a brdfkit.Model, a model name such as 'lambert+ggx' or a PythonModel");
   }
-  if (!init.is_none()) o.initial = MakeModel(mm.Spec(), init).params;
+  if (!init.is_none())
+    o.initial = python ? ParseParams(python->info, ParamsText(init)) : MakeModel(mm.Spec(), init).params;
   synth::Instrument inst;
   if (!instrument.is_none()) {
     inst = InstrumentArgument(instrument);
@@ -215,12 +223,37 @@ py::dict Fit(const py::object& model, const py::object& data, const py::object& 
   }
   const fit::Dataset ds = DatasetArgument(data, wo, f, sigma);
   fit::Result r;
-  RunReleased(threads, [&](const CancelToken& token) {
-    o.progress = [&token](int, double, double) { token.ThrowIfCancelled(); };
-    r = fit::Fit(mm, ds, o);
-  });
+  if (python) {
+    ToolModel tm;
+    tm.calls = std::make_shared<CallState>(false);
+    const std::unique_ptr<fit::Evaluators> ev = FitEvaluators(python, ds, tm.calls);
+    RunTool(tm, threads, [&](const CancelToken& token) {
+      // After a failed call the evaluators only return NaN: stop at the next iteration.
+      o.progress = [&token, &tm](int, double, double) {
+        token.ThrowIfCancelled();
+        if (tm.calls->Stopped()) throw Cancelled();
+      };
+      r = fit::Fit(*ev, ds, o);
+    });
+  } else {
+    RunReleased(threads, [&](const CancelToken& token) {
+      o.progress = [&token](int, double, double) { token.ThrowIfCancelled(); };
+      r = fit::Fit(mm, ds, o);
+    });
+  }
   o.progress = nullptr;
-  py::dict d = ToPython(cli::FitResultJson(r, o));
+  nlohmann::json j = cli::FitResultJson(r, o);
+  if (python) {
+    // A PythonModel's parameters are scalars: name -> value (null where not finite).
+    j["model"] = python->info.name;
+    for (const char* key : {"params", "stddev"}) {
+      const std::vector<double>& v = key[0] == 'p' ? r.params : r.stddev;
+      j[key] = nlohmann::json::object();
+      for (std::size_t k = 0; k < v.size(); ++k)
+        j[key][python->info.params[k].name] = std::isfinite(v[k]) ? nlohmann::json(v[k]) : nlohmann::json(nullptr);
+    }
+  }
+  py::dict d = ToPython(j);
   const std::size_t n = r.params.size();
   d["packed_names"] = r.packed_names;
   d["packed_params"] = py::array_t<double>(n, r.params.data());
@@ -231,7 +264,8 @@ py::dict Fit(const py::object& model, const py::object& data, const py::object& 
       cov.mutable_at(i, k) = r.covariance_ok ? r.correlation(i, k) * r.stddev[i] * r.stddev[k]
                                              : std::numeric_limits<double>::quiet_NaN();
   d["covariance"] = cov;
-  d["model_object"] = py::cast(MakeModel(r.model.Spec(), py::str(FormatParams(r.model.Info(), r.params))));
+  d["model_object"] = python ? py::object(model)
+                             : py::cast(MakeModel(r.model.Spec(), py::str(FormatParams(r.model.Info(), r.params))));
   return d;
 }
 
