@@ -327,7 +327,8 @@ class Bxdf {
   }
   // f_r of n pairs, rows wi + k * wi_stride and wo + k * wo_stride (x, y, z;
   // stride 0 repeats one direction), into out[3 k + c]: one virtual call for
-  // the whole batch (adapters run the loop of brdf/batch.h, Eval inlined).
+  // the whole batch (adapters run the model's own vectorised kernel, or the
+  // loop of brdf/batch.h with Eval inlined).
   virtual void EvalBatch(const T* p, const T* wi, std::size_t wi_stride, const T* wo, std::size_t wo_stride,
                          std::size_t n, T* out) const {
     for (std::size_t k = 0; k < n; ++k) {

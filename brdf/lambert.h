@@ -6,6 +6,7 @@
 // cosine-weighted (pdf = cos_theta_i / pi), exact importance sampling.
 #pragma once
 
+#include "brdf/batch.h"
 #include "brdf/core.h"
 
 namespace brdfkit {
@@ -34,7 +35,28 @@ struct Lambert : CosineSampling {
     return RgbAt(p, kAlbedo) * T(kInvPi);
   }
 
+  // Eval over n pairs, vectorised (brdf/batch.h): the same values, bit for bit.
+  template <typename T>
+    requires std::is_floating_point_v<T>
+  void EvalBatch(const T* p, const T* wi, std::size_t wi_stride, const T* wo, std::size_t wo_stride, std::size_t n,
+                 T* out) const {
+    const Rgb<T> f = RgbAt(p, kAlbedo) * T(kInvPi);
+    RunBatchKernel(Kernel<T>{f[0], f[1], f[2]}, wi, wi_stride, wo, wo_stride, n, out);
+  }
+
   double SampleWeight(const double* p) const { return MeanRgb(p, kAlbedo); }
+
+ private:
+  template <typename T>
+  struct Kernel {
+    T r, g, b;  // rho / pi
+    [[gnu::always_inline]] void operator()(const T* wi, const T* wo, T* out) const {
+      const bool above = (wi[2] > T(0)) & (wo[2] > T(0));
+      out[0] = Select(above, r, T(0));
+      out[1] = Select(above, g, T(0));
+      out[2] = Select(above, b, T(0));
+    }
+  };
 };
 
 }  // namespace brdfkit

@@ -30,6 +30,7 @@
 // the albedo tables of validate/ give the compensation).
 #pragma once
 
+#include "brdf/batch.h"
 #include "brdf/core.h"
 
 #include <string>
@@ -290,6 +291,39 @@ class MicrofacetModel {
     return Fresnel(p, T(wi.dot(wm))) * scalar;
   }
 
+  // Eval over n pairs, vectorised (brdf/batch.h), for the GGX models with
+  // Schlick Fresnel in double and float. Eval's value rewritten with two
+  // divisions and three square roots instead of ten and three: with
+  // h = wi + wo, h2 = |h|^2, wm = h / |h| and, for w = wi, wo,
+  // s_w = sqrt(wz^2 + ax^2 wx^2 + ay^2 wy^2) (so 1 + a^2 tan^2 = s_w^2 / wz^2),
+  //   D = 1 / (pi ax ay e^2),  e = (hx^2 / ax^2 + hy^2 / ay^2 + hz^2) / h2,
+  //   G2 / (4 cos_i cos_o) = 1 / (2 (cos_o s_i + cos_i s_o))    height-correlated,
+  //                        = 1 / ((cos_i + s_i) (cos_o + s_o))  separable,
+  //   cos(wi, wm) = (wi.h) / |h|,
+  // every term positive (no cancellation). Pairs where Eval returns 0
+  // (either direction at or below the horizon, wi.h <= 0 or wo.h <= 0) are
+  // masked to 0. Agrees with Eval to a few units in the last place, except
+  // where the sign of wi.h or wo.h is itself rounding noise (grazing,
+  // nearly opposite pairs).
+  static constexpr bool kBatchKernel =
+      Config::kDist == MicrofacetDistribution::kGgx && Config::kFresnel == FresnelForm::kSchlick;
+
+  template <typename T>
+    requires(std::is_floating_point_v<T> && kBatchKernel)
+  void EvalBatch(const T* p, const T* wi, std::size_t wi_stride, const T* wo, std::size_t wo_stride, std::size_t n,
+                 T* out) const {
+    T ax, ay;
+    Roughness(p, ax, ay);
+    GgxKernel<T> k;
+    k.ax2 = ax * ax;
+    k.ay2 = ay * ay;
+    k.inv_ax2 = T(1) / k.ax2;
+    k.inv_ay2 = T(1) / k.ay2;
+    k.scale = T(Config::kSmith == SmithForm::kSeparable ? kPi : 2 * kPi) * ax * ay;
+    for (int c = 0; c < 3; ++c) k.f0[c] = At(p, kF0, c);
+    RunBatchKernel(k, wi, wi_stride, wo, wo_stride, n, out);
+  }
+
   template <typename T>
   T Pdf(const T* p, const Vec3<T>& wo, const Vec3<T>& wi) const {
     if (!SameUpperHemisphere(wi, wo)) return T(0);
@@ -334,6 +368,41 @@ class MicrofacetModel {
       return s / 3.0;
     }
   }
+
+ private:
+  template <typename T>
+  struct GgxKernel {
+    T ax2, ay2, inv_ax2, inv_ay2;
+    T scale;  // pi ax ay (separable) or 2 pi ax ay (height-correlated)
+    T f0[3];
+    [[gnu::always_inline]] void operator()(const T* wi, const T* wo, T* out) const {
+      using std::sqrt;
+      const T ix = wi[0], iy = wi[1], iz = wi[2];
+      const T ox = wo[0], oy = wo[1], oz = wo[2];
+      const T hx = ix + ox, hy = iy + oy, hz = iz + oz;
+      const T h2 = hx * hx + hy * hy + hz * hz;
+      const T q = T(1) / h2;
+      const T di = ix * hx + iy * hy + iz * hz;
+      const T dout = ox * hx + oy * hy + oz * hz;
+      const T e = (hx * hx * inv_ax2 + hy * hy * inv_ay2 + hz * hz) * q;
+      const T si = sqrt(iz * iz + ax2 * ix * ix + ay2 * iy * iy);
+      const T so = sqrt(oz * oz + ax2 * ox * ox + ay2 * oy * oy);
+      T g;
+      if constexpr (Config::kSmith == SmithForm::kSeparable) g = (iz + si) * (oz + so);
+      else g = oz * si + iz * so;
+      const T value = T(1) / (scale * e * e * g);
+      const bool nonzero = (iz > T(0)) & (oz > T(0)) & (di > T(0)) & (dout > T(0));
+      const T f = Select(nonzero, value, T(0));
+      // Schlick with the cosine clamped to [0, 1], as FresnelSchlick.
+      const T cos0 = di * q * sqrt(h2);
+      const T cos1 = Select(cos0 > T(0), cos0, T(0));
+      const T c = Select(cos1 > T(1), T(1), cos1);
+      const T m = T(1) - c;
+      const T m2 = m * m;
+      const T m5 = m2 * m2 * m;
+      for (int ch = 0; ch < 3; ++ch) out[ch] = (f0[ch] + (T(1) - f0[ch]) * m5) * f;
+    }
+  };
 };
 
 // --- presets ---------------------------------------------------------------

@@ -20,6 +20,11 @@
 //   template <class T> T G1(const T* p, const Vec3<T>& w, const Vec3<T>& wm) const;  // Smith
 //   template <class T> T RelativeIndex(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const;
 //     (eta_wi / eta_wo; required when kKind has kTransmission, see Bxdf::RelativeIndex)
+//   template <class T> void EvalBatch(const T* p, const T* wi, std::size_t wi_stride, const T* wo,
+//                                     std::size_t wo_stride, std::size_t n, T* out) const;
+//     Eval over n pairs (the layout of brdf/batch.h), typically a vectorised
+//     kernel run by RunBatchKernel; for the scalar types it accepts (the
+//     others, ceres::Jet among them, take the generic loop of brdf/batch.h)
 // and is listed once in registry.h. The traits are read in one place,
 // detail::Traits below, and reach the tools through Bxdf::Kind, Width and
 // ChannelsIndependent.
@@ -123,7 +128,10 @@ class ModelAdapter final : public Bxdf<T> {
   };
   void EvalBatch(const T* p, const T* wi, std::size_t wi_stride, const T* wo, std::size_t wo_stride, std::size_t n,
                  T* out) const override {
-    brdfkit::EvalBatch(*m_, p, wi, wi_stride, wo, wo_stride, n, out);
+    if constexpr (requires(const M& mm) { mm.template EvalBatch<T>(p, wi, wi_stride, wo, wo_stride, n, out); })
+      m_->template EvalBatch<T>(p, wi, wi_stride, wo, wo_stride, n, out);
+    else
+      brdfkit::EvalBatch(*m_, p, wi, wi_stride, wo, wo_stride, n, out);
   }
   BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const override {
     if constexpr (kSamples) return m_->template Sample<T>(p, wo, u1, u2);

@@ -28,7 +28,7 @@ std::string ShapeText(const py::array& a) {
 }  // namespace
 
 template <typename T>
-Rows<T> AsRows(const py::handle& obj, const char* name, int width, bool unit) {
+Rows<T> AsRowsUnchecked(const py::handle& obj, const char* name, int width) {
   py::array raw = py::array::ensure(obj);
   if (!raw) throw DtypeError(std::string(name) + " must be an array of numbers");
   const char kind = raw.dtype().kind();
@@ -49,6 +49,15 @@ Rows<T> AsRows(const py::handle& obj, const char* name, int width, bool unit) {
   }
   r.array = py::array_t<T, py::array::c_style | py::array::forcecast>::ensure(raw);
   if (!r.array) throw DtypeError(std::string(name) + ": cannot convert to " + (kIsFloat<T> ? "float32" : "float64"));
+  return r;
+}
+
+// The tolerance on |row|^2 - 1 of a unit direction: 2e-5 covers float32
+// rounding of a normalised vector (about 1e-7) with room to spare.
+constexpr double kUnitTolerance = 2e-5;
+
+template <typename T>
+void CheckRows(const Rows<T>& r, const char* name, int width, bool unit) {
   const T* d = r.array.data();
   const std::size_t rows = r.single ? 1 : r.n;
   for (std::size_t k = 0; k < rows; ++k) {
@@ -60,16 +69,41 @@ Rows<T> AsRows(const py::handle& obj, const char* name, int width, bool unit) {
                             " is not finite (value " + FormatDouble(v) + ")");
       norm2 += v * v;
     }
-    // 1e-5 covers float32 rounding of a normalised vector (about 1e-7).
-    if (unit && std::abs(norm2 - 1.0) > 2e-5)
+    if (unit && std::abs(norm2 - 1.0) > kUnitTolerance)
       throw ArgumentError(std::string(name) + (r.single ? "" : " row " + std::to_string(k)) +
                           " is not a unit vector (length " + FormatDouble(std::sqrt(norm2)) + ")");
   }
+}
+
+template <typename T>
+bool UnitRows(const T* d, std::size_t rows) {
+  // One test per row, as CheckRows's: a non-finite component makes norm2
+  // infinite or NaN, which fails the comparison. Written without branches
+  // so that the loop vectorises.
+  bool ok = true;
+  for (std::size_t k = 0; k < rows; ++k) {
+    const double x = d[3 * k], y = d[3 * k + 1], z = d[3 * k + 2];
+    const double norm2 = x * x + y * y + z * z;
+    ok &= std::abs(norm2 - 1.0) <= kUnitTolerance;
+  }
+  return ok;
+}
+
+template <typename T>
+Rows<T> AsRows(const py::handle& obj, const char* name, int width, bool unit) {
+  Rows<T> r = AsRowsUnchecked<T>(obj, name, width);
+  CheckRows(r, name, width, unit);
   return r;
 }
 
 template Rows<double> AsRows<double>(const py::handle&, const char*, int, bool);
 template Rows<float> AsRows<float>(const py::handle&, const char*, int, bool);
+template Rows<double> AsRowsUnchecked<double>(const py::handle&, const char*, int);
+template Rows<float> AsRowsUnchecked<float>(const py::handle&, const char*, int);
+template void CheckRows<double>(const Rows<double>&, const char*, int, bool);
+template void CheckRows<float>(const Rows<float>&, const char*, int, bool);
+template bool UnitRows<double>(const double*, std::size_t);
+template bool UnitRows<float>(const float*, std::size_t);
 
 std::size_t BroadcastRows(const char* a, std::size_t na, bool single_a, const char* b, std::size_t nb, bool single_b) {
   if (single_a) return nb;

@@ -51,6 +51,17 @@ bool IsFloat32(const py::handle& obj);
 // rounding), since the models take unit directions.
 template <typename T>
 Rows<T> AsRows(const py::handle& obj, const char* name, int width, bool unit);
+// AsRows in two steps, for callers that check the values later, chunk by
+// chunk, alongside the work: the shape and conversion (no copy of a
+// C-contiguous array of type T), then the values (raises as AsRows).
+template <typename T>
+Rows<T> AsRowsUnchecked(const py::handle& obj, const char* name, int width);
+template <typename T>
+void CheckRows(const Rows<T>& r, const char* name, int width, bool unit);
+// Whether rows of three are finite unit vectors as AsRows requires (no
+// message, no Python call: runs with the GIL released).
+template <typename T>
+bool UnitRows(const T* d, std::size_t rows);
 
 // The common row count of arguments that broadcast (a single row repeats).
 std::size_t BroadcastRows(const char* a, std::size_t na, bool single_a, const char* b, std::size_t nb, bool single_b);

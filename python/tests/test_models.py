@@ -129,6 +129,37 @@ def test_errors_carry_the_cli_messages():
         brdfkit.Model("ggx", 3)
 
 
+def test_eval_checks_rows_of_every_chunk_in_order():
+    # eval checks the rows chunk by chunk as it evaluates; a bad row anywhere
+    # raises the message of a check of all of wi, then all of wo.
+    m = brdfkit.Model("ggx")
+    wi, wo = unit_rows(10000, seed=4), unit_rows(10000, seed=5)
+    bad_wo = wo.copy()
+    bad_wo[7000] = [0.0, 0.0, 2.0]
+    with pytest.raises(ValueError, match="wo row 7000 is not a unit vector"):
+        m.eval(wi, bad_wo)
+    bad_wi = wi.copy()
+    bad_wi[9999, 1] = np.inf
+    with pytest.raises(ValueError, match="wi row 9999 is not finite"):
+        m.eval(bad_wi, wo)
+    with pytest.raises(ValueError, match="wi row 9999 is not finite"):
+        m.eval(bad_wi.astype(np.float32), wo.astype(np.float32))
+    bad_wo[100] = [0.0, np.nan, 1.0]  # a bad wo row in an earlier chunk than wi's
+    with pytest.raises(ValueError, match="wi row 9999 is not finite"):
+        m.eval(bad_wi, bad_wo)
+    with pytest.raises(ValueError, match="wo row 100 is not finite"):
+        m.eval(wi[0], bad_wo)
+    # The values before a wrong shape of wo or a different row count.
+    with pytest.raises(ValueError, match="wi row 9999 is not finite"):
+        m.eval(bad_wi, np.zeros((4, 2)))
+    with pytest.raises(ValueError, match="wi row 9999 is not finite"):
+        m.eval(bad_wi, wo[:5])
+    with pytest.raises(ValueError, match="wo row 100 is not finite"):
+        m.eval(wi[:5], bad_wo)
+    # Zero rows: an empty result.
+    assert m.eval(np.zeros((0, 3)), wo[0]).shape == (0, 3)
+
+
 def test_models_from_several_threads():
     # One shared model, eight Python threads: each result equals the serial one.
     m = brdfkit.Model("lambert+ggx", {"ggx.alpha": 0.1})
