@@ -1008,8 +1008,8 @@ Layout MakeLayout(const ModelInfo& info, const Options& o) {
     }
   }
   if (l.Free() == 0)
-    throw std::invalid_argument("model '" + info.name +
-                                "' has nothing left to fit: every parameter is fixed or tied to a fixed one");
+    throw std::invalid_argument("fix: nothing left to fit in model '" + info.name +
+                                "': every parameter is fixed or tied to a fixed one");
   return l;
 }
 
