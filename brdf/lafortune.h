@@ -45,6 +45,7 @@ struct Lafortune {
   static constexpr std::array kSlots{kRho, kCx, kCy, kCz, kN};
   static constexpr unsigned kKind = LobeKind::kGlossy;
   static constexpr bool kChannelsIndependent = true;
+  static constexpr bool kVanishes = true;  // zero with its colour parameters at 0
   // The cos^n lobe about its axis; |c| < 1 only lowers it, not its width.
   LobeWidth Width(const double* p) const {
     const double w = PhongExponentWidth(At(p, kN));

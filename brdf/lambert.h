@@ -18,6 +18,7 @@ struct Lambert : CosineSampling {
   static constexpr std::array kSlots{kAlbedo};
   static constexpr unsigned kKind = LobeKind::kDiffuse;
   static constexpr bool kChannelsIndependent = true;
+  static constexpr bool kVanishes = true;  // zero with its colour parameters at 0
 
   static ModelInfo Info() {
     ModelInfo info;

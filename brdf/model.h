@@ -15,6 +15,8 @@
 //   static constexpr std::array<Slot, N> kSlots;  // its parameters by name (see Slot)
 //   LobeWidth Width(const double* p) const;       // required when kKind has kGlossy
 //   static constexpr bool kChannelsIndependent;   // channel c reads only channel c (default false)
+//   static constexpr bool kVanishes;  // zero everywhere once its colour parameters whose range
+//                                     // starts at 0 are 0 (default false: a sum gives it a weight)
 //   double SampleWeight(const double* p) const;                  // lobe choice in sums
 //   template <class T> T D(const T* p, const Vec3<T>& wm) const;  // microfacet models
 //   template <class T> T G1(const T* p, const Vec3<T>& w, const Vec3<T>& wm) const;  // Smith
@@ -53,6 +55,7 @@ struct DeclaredTraits {
   unsigned kind = 0;
   bool channels_independent = false;
   std::vector<Slot> slots;
+  bool vanishes = false;
 };
 
 namespace detail {
@@ -74,6 +77,10 @@ struct Traits {
                 "a transmitting model declares its index ratio: T RelativeIndex(const T* p, wi, wo) const");
   static constexpr bool kChannelsIndependent = [] {
     if constexpr (requires { M::kChannelsIndependent; }) return bool(M::kChannelsIndependent);
+    return false;
+  }();
+  static constexpr bool kVanishes = [] {
+    if constexpr (requires { M::kVanishes; }) return bool(M::kVanishes);
     return false;
   }();
   static std::vector<Slot> Slots() {
@@ -164,22 +171,32 @@ class ModelAdapter final : public Bxdf<T> {
   std::unique_ptr<MicrofacetView<T>> micro_;
 };
 
-// Sum of lobes: f = sum_k f_k; sampling picks lobe k with probability
-// proportional to its SampleWeight and the pdf is the mixture density.
+// Sum of lobes: f = sum_k w_k f_k, w_k the lobe's `weight` parameter where
+// it has one (Model::Parse) and 1 otherwise; sampling picks lobe k with
+// probability proportional to w_k times its SampleWeight and the pdf is the
+// mixture density.
 template <typename T>
 class SumBxdf final : public Bxdf<T> {
  public:
-  SumBxdf(std::vector<std::unique_ptr<Bxdf<T>>> lobes, std::vector<std::size_t> offsets, ModelInfo info)
-      : lobes_(std::move(lobes)), offsets_(std::move(offsets)), info_(std::move(info)) {}
+  // weights[k]: packed index of lobe k's weight, or -1 when it has none.
+  SumBxdf(std::vector<std::unique_ptr<Bxdf<T>>> lobes, std::vector<std::size_t> offsets,
+          std::vector<std::ptrdiff_t> weights, ModelInfo info)
+      : lobes_(std::move(lobes)), offsets_(std::move(offsets)), weights_(std::move(weights)), info_(std::move(info)) {}
   const ModelInfo& Info() const override { return info_; }
   Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const override {
     Rgb<T> f = Rgb<T>::Constant(T(0));
-    for (std::size_t k = 0; k < lobes_.size(); ++k) f += lobes_[k]->Eval(p + offsets_[k], wi, wo);
+    for (std::size_t k = 0; k < lobes_.size(); ++k) {
+      if (weights_[k] < 0) f += lobes_[k]->Eval(p + offsets_[k], wi, wo);
+      else f += lobes_[k]->Eval(p + offsets_[k], wi, wo) * p[weights_[k]];
+    }
     return f;
   }
   Rgb<T> EvalSum(const T* p, const Vec3<T>& wi, const Vec3<T>* wo, const double* w, std::size_t n) const override {
     Rgb<T> f = Rgb<T>::Constant(T(0));
-    for (std::size_t k = 0; k < lobes_.size(); ++k) f += lobes_[k]->EvalSum(p + offsets_[k], wi, wo, w, n);
+    for (std::size_t k = 0; k < lobes_.size(); ++k) {
+      if (weights_[k] < 0) f += lobes_[k]->EvalSum(p + offsets_[k], wi, wo, w, n);
+      else f += lobes_[k]->EvalSum(p + offsets_[k], wi, wo, w, n) * p[weights_[k]];
+    }
     return f;
   }
   // Lobe by lobe over chunks small enough to stay in cache.
@@ -193,9 +210,14 @@ class SumBxdf final : public Bxdf<T> {
       const T* b = wo + start * wo_stride;
       T* o = out + 3 * start;
       lobes_[0]->EvalBatch(p + offsets_[0], a, wi_stride, b, wo_stride, m, o);
+      if (weights_[0] >= 0)
+        for (std::size_t i = 0; i < 3 * m; ++i) o[i] *= p[weights_[0]];
       for (std::size_t k = 1; k < lobes_.size(); ++k) {
         lobes_[k]->EvalBatch(p + offsets_[k], a, wi_stride, b, wo_stride, m, part);
-        for (std::size_t i = 0; i < 3 * m; ++i) o[i] += part[i];
+        if (weights_[k] < 0)
+          for (std::size_t i = 0; i < 3 * m; ++i) o[i] += part[i];
+        else
+          for (std::size_t i = 0; i < 3 * m; ++i) o[i] += part[i] * p[weights_[k]];
       }
     }
   }
@@ -224,7 +246,7 @@ class SumBxdf final : public Bxdf<T> {
   }
   double SampleWeight(const double* p) const override {
     double s = 0;
-    for (std::size_t k = 0; k < lobes_.size(); ++k) s += lobes_[k]->SampleWeight(p + offsets_[k]);
+    for (std::size_t k = 0; k < lobes_.size(); ++k) s += LobeWeight(p, k) * lobes_[k]->SampleWeight(p + offsets_[k]);
     return s;
   }
   bool CanSample() const override {
@@ -269,7 +291,7 @@ class SumBxdf final : public Bxdf<T> {
     std::vector<double> w(lobes_.size());
     double total = 0;
     for (std::size_t k = 0; k < lobes_.size(); ++k) {
-      w[k] = std::max(0.0, lobes_[k]->SampleWeight(pv.data() + offsets_[k]));
+      w[k] = std::max(0.0, LobeWeight(pv.data(), k) * lobes_[k]->SampleWeight(pv.data() + offsets_[k]));
       total += w[k];
     }
     // All lobes black: sample them evenly so the pdf stays a density.
@@ -281,8 +303,11 @@ class SumBxdf final : public Bxdf<T> {
     return w;
   }
 
+  double LobeWeight(const double* p, std::size_t k) const { return weights_[k] < 0 ? 1.0 : p[weights_[k]]; }
+
   std::vector<std::unique_ptr<Bxdf<T>>> lobes_;
   std::vector<std::size_t> offsets_;
+  std::vector<std::ptrdiff_t> weights_;
   ModelInfo info_;
 };
 
@@ -339,7 +364,8 @@ inline DeclaredTraits TraitsOf(const std::string& model_name) {
   detail::ForEachModelType([&](std::size_t, auto* tag) {
     using M = std::remove_pointer_t<decltype(tag)>;
     if (M::Info().name != model_name) return false;
-    out = {detail::Traits<M>::kKind, detail::Traits<M>::kChannelsIndependent, detail::Traits<M>::Slots()};
+    out = {detail::Traits<M>::kKind, detail::Traits<M>::kChannelsIndependent, detail::Traits<M>::Slots(),
+           detail::Traits<M>::kVanishes};
     return true;
   });
   for (const detail::ExtensionModel& e : detail::ExtensionModels())
@@ -359,7 +385,8 @@ bool RegisterModel() {
   e.info = M::Info();
   for (const ModelInfo& i : RegisteredModelInfos())
     if (i.name == e.info.name) throw ModelError("model '" + e.info.name + "' is registered twice");
-  e.traits = {detail::Traits<M>::kKind, detail::Traits<M>::kChannelsIndependent, detail::Traits<M>::Slots()};
+  e.traits = {detail::Traits<M>::kKind, detail::Traits<M>::kChannelsIndependent, detail::Traits<M>::Slots(),
+              detail::Traits<M>::kVanishes};
   e.construct = [](const Settings& s) -> std::shared_ptr<const void> { return std::make_shared<const M>(s); };
   (e.make.emplace(std::type_index(typeid(Scalars)),
                   reinterpret_cast<void (*)()>(static_cast<detail::MakeFn<Scalars>>(&detail::MakeAdapter<M, Scalars>))),
@@ -415,6 +442,7 @@ class Model {
           if (std::find(info.settings.begin(), info.settings.end(), k) == info.settings.end())
             throw ModelError("model '" + name + "' has no setting '" + k + "'");
         lobe.index = index;
+        lobe.vanishes = detail::Traits<M>::kVanishes;
         lobe.info = info;
         lobe.impl = std::make_shared<const M>(s);
         return true;
@@ -431,6 +459,7 @@ class Model {
           if (std::find(e.info.settings.begin(), e.info.settings.end(), key) == e.info.settings.end())
             throw ModelError("model '" + name + "' has no setting '" + key + "'");
         lobe.index = std::tuple_size_v<RegisteredModels> + k;
+        lobe.vanishes = e.traits.vanishes;
         lobe.info = e.info;
         lobe.impl = e.construct(s);
         found = true;
@@ -451,6 +480,10 @@ class Model {
   std::size_t LobeCount() const { return lobes_.size(); }
   const ModelInfo& LobeInfo(std::size_t k) const { return lobes_[k].info; }
   std::size_t LobeOffset(std::size_t k) const { return offsets_[k]; }
+  // Packed index of lobe k's weight in a sum, or -1 when it has none.
+  std::ptrdiff_t LobeWeightIndex(std::size_t k) const { return weights_[k]; }
+  // "ggx", "ggx#2": the prefix of lobe k's parameter names in a sum.
+  const std::string& LobePrefix(std::size_t k) const { return lobes_[k].prefix; }
 
   // The run-time model on scalar T (every registered model is compiled for T).
   template <typename T>
@@ -472,6 +505,7 @@ class Model {
   struct Lobe {
     std::size_t index = 0;
     std::string prefix;
+    bool vanishes = false;  // zero everywhere with its colour parameters at 0 (Traits::kVanishes)
     ModelInfo info;
     std::shared_ptr<const void> impl;
   };
@@ -497,6 +531,7 @@ class Model {
     if (lobes_.size() == 1) {
       info_ = lobes_[0].info;
       offsets_ = {0};
+      weights_ = {-1};
       return;
     }
     info_ = ModelInfo{};
@@ -513,12 +548,22 @@ class Model {
         p.name = l.prefix + "." + p.name;
         info_.params.push_back(p);
       }
+      // A lobe that cannot vanish by its own parameters gets a weight, so
+      // that every lobe of a sum can be switched off and a sum nests its
+      // sub-sums. 1 (the default) is the lobe as it is alone.
+      weights_.push_back(-1);
+      if (!l.vanishes) {
+        weights_.back() = static_cast<std::ptrdiff_t>(off++);
+        info_.params.push_back({l.prefix + ".weight", 0.0, 10.0, 1.0, false,
+                                "weight of the lobe in the sum (0 switches it off)"});
+      }
     }
   }
 
   std::string spec_;
   std::vector<Lobe> lobes_;
   std::vector<std::size_t> offsets_;
+  std::vector<std::ptrdiff_t> weights_;
   ModelInfo info_;
 };
 
@@ -527,7 +572,7 @@ std::unique_ptr<Bxdf<T>> Model::Make() const {
   if (lobes_.size() == 1) return MakeLobe<T>(lobes_[0], info_);
   std::vector<std::unique_ptr<Bxdf<T>>> parts;
   for (const Lobe& l : lobes_) parts.push_back(MakeLobe<T>(l, l.info));
-  return std::make_unique<detail::SumBxdf<T>>(std::move(parts), offsets_, info_);
+  return std::make_unique<detail::SumBxdf<T>>(std::move(parts), offsets_, weights_, info_);
 }
 
 // Programs linking brdfkit::validate get Make<double> and Make<float>

@@ -75,6 +75,7 @@ struct CosineSampledDiffuse : CosineSampling {
   static constexpr std::array kSlots{kAlbedo, kSigma};
   static constexpr unsigned kKind = LobeKind::kDiffuse;
   static constexpr bool kChannelsIndependent = true;
+  static constexpr bool kVanishes = true;  // zero with its colour parameters at 0
   double SampleWeight(const double* p) const { return MeanRgb(p, kAlbedo); }
 };
 

@@ -86,6 +86,7 @@ struct PhongLobe {
   static constexpr std::array kSlots{kKs, kN};
   static constexpr unsigned kKind = LobeKind::kGlossy;
   static constexpr bool kChannelsIndependent = true;
+  static constexpr bool kVanishes = true;  // zero with its colour parameters at 0
   LobeWidth Width(const double* p) const {
     const double w = PhongExponentWidth(At(p, kN));
     return {w, w};

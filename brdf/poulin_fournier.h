@@ -195,6 +195,7 @@ class PoulinFournier {
   static constexpr std::array kSlots{kKd, kKs, kE, kD, kH, kAngle};
   static constexpr unsigned kKind = LobeKind::kDiffuse | LobeKind::kGlossy;
   static constexpr bool kChannelsIndependent = true;
+  static constexpr bool kVanishes = true;  // zero with its colour parameters at 0
   // Along the cylinders the lobe is the Phong lobe of exponent e; across
   // them the normals of the arc (up to theta_m from z) spread it further, up
   // to the whole hemisphere (width 1). x and y get the rotated marginals.

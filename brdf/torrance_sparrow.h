@@ -157,6 +157,7 @@ class VGrooveModel {
   static constexpr std::array kSlots{kKs, kM, kEta};
   static constexpr unsigned kKind = LobeKind::kGlossy;
   static constexpr bool kChannelsIndependent = true;
+  static constexpr bool kVanishes = true;  // zero with its colour parameters at 0
   LobeWidth Width(const double* p) const { return {At(p, kM), At(p, kM)}; }
 
   static ModelInfo Info() {

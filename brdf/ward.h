@@ -60,6 +60,7 @@ class WardModel {
   static constexpr std::array kSlots{kRhoD, kRhoS, kAlphaX, kAlphaY};
   static constexpr unsigned kKind = LobeKind::kDiffuse | LobeKind::kGlossy;
   static constexpr bool kChannelsIndependent = true;
+  static constexpr bool kVanishes = true;  // zero with its colour parameters at 0
   LobeWidth Width(const double* p) const { return {At(p, kAlphaX), At(p, kAlphaY)}; }
 
   static ModelInfo Info() {

@@ -74,6 +74,23 @@ nlohmann::json ResultJson(const fit::Result& r, const fit::Options& o) {
   j["stddev_meaning"] =
       "statistical given the model: how well the data determine this model's parameters, not how far the model is "
       "from the material";
+  std::vector<std::string> fixed;
+  nlohmann::json tied = nlohmann::json::object();
+  for (std::size_t i = 0, k = 0; i < info.params.size(); k += info.params[i].colour ? 3 : 1, ++i) {
+    if (k < r.fixed.size() && r.fixed[k]) fixed.push_back(info.params[i].name);
+    if (k < r.tied_to.size() && !r.tied_to[k].empty()) {
+      std::string leader = r.tied_to[k];
+      if (info.params[i].colour) leader = leader.substr(0, leader.rfind('.'));  // "ggx.f0.r" -> "ggx.f0"
+      tied[info.params[i].name] = leader;
+    }
+  }
+  j["fixed"] = fixed;
+  j["tied"] = tied;
+  nlohmann::json optima = nlohmann::json::array();
+  for (const fit::LocalOptimum& l : r.local_optima)
+    optima.push_back({{"cost", l.cost}, {"params", ParamsJson(info, l.params)}, {"origin", l.origin}});
+  j["local_optima"] = optima;
+  j["kept"] = r.kept;
   j["warnings"] = r.warnings;
   j["iterations"] = r.iterations;
   j["starts"] = r.starts;
@@ -85,17 +102,19 @@ nlohmann::json ResultJson(const fit::Result& r, const fit::Options& o) {
   j["dropped_angle"] = r.dropped_angle;
   nlohmann::json trace = nlohmann::json::array();
   for (const fit::TracePoint& t : r.trace)
-    trace.push_back({{"iteration", t.iteration}, {"seconds", t.seconds}, {"cost", t.cost}, {"rmse", t.rmse}, {"start", t.start}});
+    trace.push_back({{"iteration", t.iteration}, {"seconds", t.seconds}, {"cost", t.cost}, {"rmse", t.rmse},
+                     {"start", t.start}, {"stage", t.stage}});
   j["trace"] = trace;
   return j;
 }
 
 std::string TraceCsv(const fit::Result& r) {
-  std::string s = "iteration,seconds,cost,rmse,start\n";
+  std::string s = "iteration,seconds,cost,rmse,start,stage\n";
   char buf[160];
   for (const fit::TracePoint& t : r.trace) {
-    std::snprintf(buf, sizeof buf, "%d,%.9g,%.17g,%.17g,%d\n", t.iteration, t.seconds, t.cost, t.rmse, t.start);
+    std::snprintf(buf, sizeof buf, "%d,%.9g,%.17g,%.17g,%d,", t.iteration, t.seconds, t.cost, t.rmse, t.start);
     s += buf;
+    s += "\"" + t.stage + "\"\n";  // stage names hold no quotes
   }
   return s;
 }
@@ -116,7 +135,8 @@ void ParseLoss(const std::string& text, fit::Options& o) {
 }
 
 // Metric RMSE against seconds (initialisation included), log-log: each
-// multi-start solve (on its subset) in grey, the final solve in colour.
+// multi-start solve (on its subset) and, for a sum, each sub-sum's solve in
+// grey, the final solve in colour.
 void WriteTracePlot(const std::string& path, const fit::Result& r) {
   std::vector<validate::Series> series;
   int last_start = -1;
@@ -124,9 +144,11 @@ void WriteTracePlot(const std::string& path, const fit::Result& r) {
     if (!(t.seconds > 0 && t.rmse > 0)) continue;  // log axes
     if (t.start != last_start) {
       const bool first_start = t.start > 0 && last_start < 0;
+      const bool sum = r.model.LobeCount() > 1;
       std::string label = t.start == 0 ? "final, all samples"
-                          : first_start ? std::to_string(r.starts) + " starts, subset"
-                                        : "";
+                          : !first_start ? ""
+                          : sum ? std::to_string(r.starts) + " solves: starts (subset) and sub-sums (all samples)"
+                                : std::to_string(r.starts) + " starts, subset";
       series.push_back({label, {}, {}});
       series.back().colour = t.start == 0 ? 0 : validate::kGrey;
       last_start = t.start;
@@ -162,7 +184,11 @@ LoadedModel LoadFitModel(const std::string& path) {
   out.params = info.Defaults();
   for (std::size_t i = 0; i < info.params.size(); ++i) {
     const ParamInfo& p = info.params[i];
-    if (!j["params"].contains(p.name)) throw UsageError("fit result '" + path + "': no value for '" + p.name + "'");
+    if (!j["params"].contains(p.name)) {
+      // A lobe weight of a sum is 1 (its default) in results written before sums had weights.
+      if (p.name.size() > 7 && p.name.compare(p.name.size() - 7, 7, ".weight") == 0) continue;
+      throw UsageError("fit result '" + path + "': no value for '" + p.name + "'");
+    }
     const nlohmann::json& v = j["params"][p.name];
     const std::size_t off = info.Offset(i);
     if (p.colour && v.is_array() && v.size() == 3 && v[0].is_number() && v[1].is_number() && v[2].is_number()) {
@@ -186,6 +212,7 @@ void RegisterFit(CLI::App& app) {
   auto* cmd = app.add_subcommand("fit", "fit a model to tabulated reflectance (CSV table or MERL binary) with Ceres");
   static std::string data, model, init, metric = "l2", loss = "none", solver = "dense_qr", instrument, out, trace,
                      trace_plot;
+  static std::vector<std::string> fix, tie, bounds;
   static double max_theta = -1;
   static int threads = 0, max_iter = 200, starts = 5, aperture_order = 0;
   static bool json = false, no_cov = false, ignore_sigma = false;
@@ -203,6 +230,9 @@ void RegisterFit(CLI::App& app) {
   cmd->add_option("--threads", threads, "threads (default 0: every core; more than the cores are capped)");
   cmd->add_option("--max-iterations", max_iter, "iterations of the final solve (default 200)");
   cmd->add_option("--starts", starts, "starts per roughness-like parameter (default 5)");
+  cmd->add_option("--fix", fix, "hold parameters fixed: name=value (colour: v or r:g:b), repeatable or comma-separated");
+  cmd->add_option("--tie", tie, "tie parameters: follower=leader (same kind and size), repeatable");
+  cmd->add_option("--bounds", bounds, "narrow a parameter's range: name=lo:hi within the model's, repeatable");
   cmd->add_flag("--no-covariance", no_cov, "skip the uncertainty computation");
   cmd->add_flag("--ignore-sigma", ignore_sigma, "do not weight by the table's sigma columns");
   cmd->add_option("--instrument", instrument, "instrument JSON: fit through its finite apertures");
@@ -240,6 +270,19 @@ void RegisterFit(CLI::App& app) {
       m = Model::Parse(model);
     }
     if (!init.empty()) o.initial = ParseParams(m.Info(), init);
+    const auto join = [](const std::vector<std::string>& v) {
+      std::string s;
+      for (const std::string& x : v) s += (s.empty() ? "" : ",") + x;
+      return s;
+    };
+    o.fix = join(fix);
+    o.tie = join(tie);
+    o.bounds = join(bounds);
+    try {
+      fit::CheckConstraints(m.Info(), o);
+    } catch (const std::invalid_argument& e) {
+      throw UsageError(std::string("--") + e.what());
+    }
 
     synth::Instrument inst;
     if (!instrument.empty()) {
@@ -263,7 +306,11 @@ void RegisterFit(CLI::App& app) {
     std::printf("model    %s\n", r.model.Spec().c_str());
     const std::vector<std::string> names = r.packed_names;
     for (std::size_t k = 0; k < names.size(); ++k)
-      std::printf("  %-24s %.9g +- %.3g\n", names[k].c_str(), r.params[k], r.stddev[k]);
+      std::printf("  %-24s %.9g +- %.3g%s\n", names[k].c_str(), r.params[k], r.stddev[k],
+                  r.fixed[k] ? " (fixed)" : !r.tied_to[k].empty() ? (" (tied to " + r.tied_to[k] + ")").c_str() : "");
+    if (r.local_optima.size() > 1)
+      std::printf("optima   %zu distinct local optima on all samples; kept the one of cost %.6g\n",
+                  r.local_optima.size(), r.local_optima[std::size_t(std::max(r.kept, 0))].cost);
     std::printf("metric   %s, rmse %.6g, cost %.6g, %d iterations (%d starts), %.3f s, %s\n",
                 fit::MetricName(o.metric).c_str(), r.rmse, r.cost, r.iterations, r.starts, r.seconds,
                 r.converged ? "converged" : "NOT converged");

@@ -371,6 +371,9 @@ TaskOutcome FitTask::Run(const TaskSpec& spec, const RunContext& ctx) const {
   opt.max_iterations = t.max_iterations;
   opt.starts_per_param = t.starts;
   if (!t.init.empty()) opt.initial = ParseParams(model.Info(), t.init);
+  opt.fix = t.fix;
+  opt.tie = t.tie;
+  opt.bounds = t.bounds;
   synth::Instrument inst;
   if (!t.instrument.empty()) {
     inst = ctx.scene.instruments.at(t.instrument).instrument;
@@ -394,8 +397,9 @@ TaskOutcome FitTask::Run(const TaskSpec& spec, const RunContext& ctx) const {
     o.files.push_back(dir.Rel("trace.svg"));
     o.figures.push_back({"Fit " + spec.name + ": error against run time", dir.Rel("trace.svg"),
                          "Metric RMSE after each accepted iteration against seconds since the start: the "
-                         "multi-start solves (grey, each on a subset of the samples), then the final solve from the "
-                         "best start on all samples."});
+                         "multi-start solves (grey, each on a subset of the samples; for a sum also its nested "
+                         "sub-sums, refined on all samples), then the final solve from the best start on all "
+                         "samples."});
   } catch (const std::invalid_argument&) {
     // A fit that converged at its starting point has no positive trace to draw.
   }

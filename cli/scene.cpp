@@ -403,6 +403,23 @@ void FitTask::Parse(SceneReader& r, const Scene& s) {
       r.FailKey("init", e.what());
     }
   }
+  {
+    fit::Options constraints;
+    for (const auto& [key, text] : {std::pair<const char*, std::string*>{"fix", &t.fix}, {"tie", &t.tie},
+                                    {"bounds", &t.bounds}})
+      if (r.Has(key)) *text = r.String(key);
+    constraints.fix = t.fix;
+    constraints.tie = t.tie;
+    constraints.bounds = t.bounds;
+    try {
+      fit::CheckConstraints(model.Info(), constraints);
+    } catch (const std::invalid_argument& e) {
+      // The message starts with the option it is about ("tie: ...").
+      const std::string what = e.what();
+      const std::string key = what.substr(0, what.find(':'));
+      r.FailKey(key == "tie" || key == "bounds" ? key.c_str() : "fix", what);
+    }
+  }
   // The fitter's own name parsers: a name it accepts is a name here.
   const auto parsed = [&r](const char* key, const std::string& text, auto parse) {
     try {

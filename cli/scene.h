@@ -103,6 +103,7 @@ struct FitTask : TaskTypeBase {
   std::string loss = "none";
   std::string solver = "dense_qr";
   std::string init;        // name=value,... (empty: multi-start)
+  std::string fix, tie, bounds;  // fit::Options::fix, tie, bounds
   std::string instrument;  // fit through its apertures (optional)
   int max_iterations = 200;
   int starts = 5;

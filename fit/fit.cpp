@@ -13,6 +13,7 @@
 #include <fstream>
 #include <iterator>
 #include <limits>
+#include <map>
 #include <numeric>
 #include <random>
 #include <sstream>
@@ -408,37 +409,95 @@ T Robust(Loss loss, double a, const T& r) {
   return r < T(0) ? T(-v) : v;
 }
 
+// Which packed parameters the optimiser moves. Packed slot k is free slot
+// free_of[k] (tied slots share their leader's) or held at value[k]; the
+// free slots' bounds (user space) are the intersection of the bounds of the
+// packed slots they feed.
+struct Layout {
+  std::vector<int> free_of;           // packed -> free slot, -1: fixed
+  std::vector<double> value;          // packed: the value of a fixed slot
+  std::vector<int> leader;            // packed -> packed slot it follows (tie), -1
+  std::vector<double> lo, hi;         // packed bounds, user space
+  std::vector<std::size_t> rep;       // free -> first packed slot it feeds
+  std::size_t Free() const { return rep.size(); }
+  // Numbers the free slots in packed order.
+  void Renumber() {
+    const std::size_t n = free_of.size();
+    std::vector<int> fresh(n, -1);
+    rep.clear();
+    for (std::size_t k = 0; k < n; ++k) {
+      if (free_of[k] < 0) continue;
+      const int l = leader[k] >= 0 ? leader[k] : int(k);
+      if (leader[k] >= 0 && free_of[std::size_t(l)] < 0) {
+        free_of[k] = -1;  // follows a fixed parameter: fixed too
+        continue;
+      }
+      if (std::size_t(l) == k) {
+        fresh[k] = int(rep.size());
+        rep.push_back(k);
+      }
+    }
+    for (std::size_t k = 0; k < n; ++k)
+      if (free_of[k] >= 0) free_of[k] = fresh[std::size_t(leader[k] >= 0 ? leader[k] : int(k))];
+  }
+};
+
+Layout AllFree(const ModelInfo& info) {
+  Layout l;
+  const std::size_t n = info.PackedSize();
+  l.free_of.assign(n, 0);
+  l.value = info.Defaults();
+  l.leader.assign(n, -1);
+  for (const ParamInfo& p : info.params)
+    for (int c = 0; c < (p.colour ? 3 : 1); ++c) {
+      l.lo.push_back(p.lower);
+      l.hi.push_back(p.upper);
+    }
+  l.Renumber();
+  return l;
+}
+
 class Engine {
  public:
-  Engine(const Evaluators& model, const Options& o, double loss_scale)
-      : metric_(o.metric), loss_(o.loss), loss_scale_(loss_scale) {
+  Engine(const Evaluators& model, const Options& o, double loss_scale, const Layout& layout)
+      : metric_(o.metric), loss_(o.loss), loss_scale_(loss_scale), layout_(layout) {
     const ModelInfo& info = model.Info();
     n_ = info.PackedSize();
-    for (const ParamInfo& p : info.params)
-      for (int c = 0; c < (p.colour ? 3 : 1); ++c) log_.push_back(p.scale == ParamInfo::Scale::kLog);
-    if (n_ > 32)
-      throw std::invalid_argument("model '" + info.name + "' has " + std::to_string(n_) +
-                                  " packed parameters; fitting supports at most 32");
+    nf_ = layout.Free();
+    std::vector<std::size_t> param_of;  // packed slot -> index into info.params
+    std::vector<int> channel_of;        // packed slot -> channel of a colour parameter, else -1
+    for (std::size_t i = 0; i < info.params.size(); ++i)
+      for (int c = 0; c < (info.params[i].colour ? 3 : 1); ++c) {
+        param_of.push_back(i);
+        channel_of.push_back(info.params[i].colour ? c : -1);
+      }
+    for (std::size_t j = 0; j < nf_; ++j)
+      log_.push_back(info.params[param_of[layout.rep[j]]].scale == ParamInfo::Scale::kLog);
     b_ = model.MakeDouble();
-    // Derivative slots: one per scalar parameter and one per colour
-    // parameter, shared by its r, g, b slots. Channel c of f_r depends only
-    // on slot c of each colour parameter (the models declare it), so the shared
+    // Derivative slots: one per free scalar parameter and one per free
+    // colour parameter, shared by its r, g, b slots. Channel c of f_r
+    // depends only on slot c of each colour parameter (the models declare
+    // it; a tie joins colour parameters channel by channel), so the shared
     // slot's derivative in channel c is the derivative by the c slot: Jets
     // of 3 slots instead of 7 for lambert+ggx.
-    for (const ParamInfo& p : info.params)
-      for (int c = 0; c < (p.colour ? 3 : 1); ++c) {
-        slot_.push_back(n_slots_);
-        channel_.push_back(p.colour ? c : -1);
-        if (c == (p.colour ? 2 : 0)) ++n_slots_;
+    const bool shared = b_->ChannelsIndependent();
+    std::vector<int> slot_of_param(info.params.size(), -1);
+    for (std::size_t j = 0; j < nf_; ++j) {
+      const std::size_t k = layout.rep[j];
+      const int c = channel_of[k];
+      if (shared && c >= 0) {
+        int& s = slot_of_param[param_of[k]];
+        if (s < 0) s = int(n_slots_++);
+        slot_.push_back(std::size_t(s));
+        channel_.push_back(c);
+      } else {
+        slot_.push_back(n_slots_++);
+        channel_.push_back(-1);
       }
-    const bool shared = n_slots_ < n_ && b_->ChannelsIndependent();
-    if (!shared) {
-      for (std::size_t k = 0; k < n_; ++k) {
-        slot_[k] = k;
-        channel_[k] = -1;
-      }
-      n_slots_ = n_;
     }
+    if (n_slots_ > 32 || n_ > 64)
+      throw std::invalid_argument("model '" + info.name + "' has " + std::to_string(nf_) +
+                                  " free parameters; fitting supports at most 32 (and 64 packed values)");
     jet_ = n_slots_ <= 4 ? 4 : n_slots_ <= 8 ? 8 : n_slots_ <= 16 ? 16 : 32;
     if (jet_ == 4) b4_ = model.MakeJet4();
     if (jet_ == 8) b8_ = model.MakeJet8();
@@ -451,15 +510,22 @@ class Engine {
     }
   }
 
-  std::size_t n() const { return n_; }
+  std::size_t n() const { return nf_; }  // free parameters
+  std::size_t packed() const { return n_; }
   int jet() const { return jet_; }
   const std::vector<bool>& log_mask() const { return log_; }
+  const Layout& layout() const { return layout_; }
 
-  // Internal (optimised) -> user parameters.
+  // Internal (optimised, free) -> user parameters (packed).
   template <class T>
   void ToUser(const T* u, T* p) const {
     using std::exp;
-    for (std::size_t k = 0; k < n_; ++k) p[k] = log_[k] ? exp(u[k]) : u[k];
+    std::array<T, 64> y;
+    for (std::size_t j = 0; j < nf_; ++j) y[j] = log_[j] ? exp(u[j]) : u[j];
+    for (std::size_t k = 0; k < n_; ++k) {
+      const int f = layout_.free_of[k];
+      p[k] = f < 0 ? T(layout_.value[k]) : y[std::size_t(f)];
+    }
   }
   std::vector<double> ToUser(const std::vector<double>& u) const {
     std::vector<double> p(n_);
@@ -467,8 +533,11 @@ class Engine {
     return p;
   }
   std::vector<double> ToInternal(const std::vector<double>& p) const {
-    std::vector<double> u(n_);
-    for (std::size_t k = 0; k < n_; ++k) u[k] = log_[k] ? std::log(p[k]) : p[k];
+    std::vector<double> u(nf_);
+    for (std::size_t j = 0; j < nf_; ++j) {
+      const double v = p[layout_.rep[j]];
+      u[j] = log_[j] ? std::log(v) : v;
+    }
     return u;
   }
 
@@ -506,7 +575,7 @@ class Engine {
     return true;
   }
 
-  // Residuals and their Jacobian (row-major, 3 (end - begin) x n).
+  // Residuals and their Jacobian (row-major, 3 (end - begin) x free parameters).
   bool EvalJacobian(const double* u, const Prepared& d, std::size_t begin, std::size_t end, double* r,
                     double* jac) const {
     switch (jet_) {
@@ -521,8 +590,8 @@ class Engine {
   template <int N>
   bool EvalJet(const Bxdf<Jet<N>>& b, const double* u, const Prepared& d, std::size_t begin, std::size_t end,
                double* r, double* jac) const {
-    std::array<Jet<N>, 32> uj, pj;
-    for (std::size_t k = 0; k < n_; ++k) uj[k] = Jet<N>(u[k], static_cast<int>(slot_[k]));
+    std::array<Jet<N>, 64> uj, pj;
+    for (std::size_t k = 0; k < nf_; ++k) uj[k] = Jet<N>(u[k], static_cast<int>(slot_[k]));
     ToUser(uj.data(), pj.data());
     for (std::size_t q = begin; q < end; ++q) {
       Jet<N> res[3];
@@ -532,10 +601,10 @@ class Engine {
         r[row] = res[c].a;
         if (!std::isfinite(r[row])) return false;
         if (jac) {
-          for (std::size_t k = 0; k < n_; ++k) {
+          for (std::size_t k = 0; k < nf_; ++k) {
             const double v = channel_[k] < 0 || channel_[k] == c ? res[c].v[slot_[k]] : 0.0;
             if (!std::isfinite(v)) return false;
-            jac[row * n_ + k] = v;
+            jac[row * nf_ + k] = v;
           }
         }
       }
@@ -546,8 +615,10 @@ class Engine {
   Metric metric_;
   Loss loss_;
   double loss_scale_;
-  std::size_t n_ = 0;
-  std::vector<std::size_t> slot_;  // derivative slot of each packed parameter
+  Layout layout_;
+  std::size_t n_ = 0;   // packed parameters
+  std::size_t nf_ = 0;  // free parameters
+  std::vector<std::size_t> slot_;  // derivative slot of each free parameter
   std::vector<int> channel_;       // its channel when the slot is shared by r, g, b; else -1
   std::size_t n_slots_ = 0;
   int jet_ = 8;
@@ -579,22 +650,26 @@ class ChunkCost final : public ceres::CostFunction {
   std::size_t begin_, end_;
 };
 
-// Bounds of the internal parameters.
-void Bounds(const ModelInfo& info, const std::vector<bool>& log_mask, std::vector<double>& lo,
+// Bounds of the internal (free) parameters: the intersection of the bounds
+// of the packed slots each one feeds.
+void Bounds(const Layout& layout, const std::vector<bool>& log_mask, std::vector<double>& lo,
             std::vector<double>& hi) {
-  for (const ParamInfo& p : info.params)
-    for (int c = 0; c < (p.colour ? 3 : 1); ++c) {
-      const std::size_t k = lo.size();
-      if (log_mask[k]) {
-        // A log-scale parameter must stay positive: a zero lower bound is
-        // replaced by a tiny fraction of the upper one.
-        const double l = p.lower > 0 ? p.lower : std::max(1e-12 * p.upper, 1e-300);
-        lo.push_back(std::log(l));
-        hi.push_back(std::log(p.upper));
-      } else {
-        lo.push_back(p.lower);
-        hi.push_back(p.upper);
-      }
+  const std::size_t nf = layout.Free();
+  lo.assign(nf, -std::numeric_limits<double>::infinity());
+  hi.assign(nf, std::numeric_limits<double>::infinity());
+  for (std::size_t k = 0; k < layout.free_of.size(); ++k) {
+    const int f = layout.free_of[k];
+    if (f < 0) continue;
+    lo[std::size_t(f)] = std::max(lo[std::size_t(f)], layout.lo[k]);
+    hi[std::size_t(f)] = std::min(hi[std::size_t(f)], layout.hi[k]);
+  }
+  for (std::size_t j = 0; j < nf; ++j)
+    if (log_mask[j]) {
+      // A log-scale parameter must stay positive: a zero lower bound is
+      // replaced by a tiny fraction of the upper one.
+      const double l = lo[j] > 0 ? lo[j] : std::max(1e-12 * hi[j], 1e-300);
+      lo[j] = std::log(l);
+      hi[j] = std::log(hi[j]);
     }
 }
 
@@ -612,12 +687,12 @@ class TraceCallback final : public ceres::IterationCallback {
 
 // Builds the problem over `d` with internal parameters `u` (updated in place).
 void BuildProblem(ceres::Problem& problem, const Engine& e, const Prepared& d, std::size_t chunk,
-                  const ModelInfo& info, std::vector<double>& u) {
+                  std::vector<double>& u) {
   problem.AddParameterBlock(u.data(), static_cast<int>(u.size()));
   for (std::size_t b = 0; b < d.size(); b += chunk)
     problem.AddResidualBlock(new ChunkCost(&e, &d, b, std::min(d.size(), b + chunk)), nullptr, u.data());
   std::vector<double> lo, hi;
-  Bounds(info, e.log_mask(), lo, hi);
+  Bounds(e.layout(), e.log_mask(), lo, hi);
   for (std::size_t k = 0; k < u.size(); ++k) {
     problem.SetParameterLowerBound(u.data(), static_cast<int>(k), lo[k]);
     problem.SetParameterUpperBound(u.data(), static_cast<int>(k), hi[k]);
@@ -809,19 +884,549 @@ double Median(std::vector<double> v) {
   return v[mid];
 }
 
+// ---------------------------------------------------------------------------
+// Fixed, tied and bounded parameters.
+
+std::size_t FindParam(const ModelInfo& info, const std::string& option, const std::string& name) {
+  for (std::size_t i = 0; i < info.params.size(); ++i)
+    if (info.params[i].name == name) return i;
+  std::string known;
+  std::vector<KnownName> names;
+  for (const ParamInfo& p : info.params) {
+    known += (known.empty() ? "" : ", ") + p.name;
+    names.push_back({p.name, p.meaning});
+  }
+  throw std::invalid_argument(option + ": unknown parameter '" + name + "' for model '" + info.name +
+                              "' (parameters: " + (known.empty() ? "none" : known) + ")" + DidYouMean(name, names));
+}
+
+std::vector<std::pair<std::string, std::string>> Assignments(const std::string& option, const std::string& text) {
+  try {
+    return SplitAssignments(text);
+  } catch (const ModelError& e) {
+    throw std::invalid_argument(option + ": " + e.what());
+  }
+}
+
+std::string Range(double lo, double hi) { return "[" + FormatDouble(lo) + ", " + FormatDouble(hi) + "]"; }
+
+Layout MakeLayout(const ModelInfo& info, const Options& o) {
+  Layout l = AllFree(info);
+  const std::size_t np = info.params.size();
+  std::vector<bool> fixed(np, false), bounded(np, false);
+  std::vector<int> tied(np, -1);
+  for (const auto& [name, value] : Assignments("fix", o.fix)) {
+    const std::size_t i = FindParam(info, "fix", name);
+    if (fixed[i]) throw std::invalid_argument("fix: '" + name + "' is fixed twice");
+    std::vector<double> packed;
+    try {
+      packed = ParseParams(info, name + "=" + value);
+    } catch (const ModelError& e) {
+      throw std::invalid_argument(std::string("fix: ") + e.what());
+    }
+    const std::size_t off = info.Offset(i);
+    for (int c = 0; c < (info.params[i].colour ? 3 : 1); ++c) {
+      l.free_of[off + c] = -1;
+      l.value[off + c] = packed[off + c];
+    }
+    fixed[i] = true;
+  }
+  for (const auto& [name, value] : Assignments("bounds", o.bounds)) {
+    const std::size_t i = FindParam(info, "bounds", name);
+    const ParamInfo& p = info.params[i];
+    if (fixed[i]) throw std::invalid_argument("bounds: '" + name + "' is fixed; give it a value or bounds, not both");
+    if (bounded[i]) throw std::invalid_argument("bounds: '" + name + "' is bounded twice");
+    const std::size_t colon = value.find(':');
+    double lo = 0, hi = 0;
+    if (colon == std::string::npos || !ParseDouble(value.substr(0, colon), lo) ||
+        !ParseDouble(value.substr(colon + 1), hi) || !std::isfinite(lo) || !std::isfinite(hi))
+      throw std::invalid_argument("bounds: '" + name + "=" + value + "': expected lo:hi (two numbers)");
+    if (lo > hi)
+      throw std::invalid_argument("bounds: '" + name + "' = " + Range(lo, hi) + " is inverted (lo above hi)");
+    if (lo == hi)
+      throw std::invalid_argument("bounds: '" + name + "' = " + Range(lo, hi) + " is empty (to hold it, use fix)");
+    if (lo < p.lower || hi > p.upper)
+      throw std::invalid_argument("bounds: '" + name + "' = " + Range(lo, hi) + " reaches outside its range " +
+                                  Range(p.lower, p.upper));
+    const std::size_t off = info.Offset(i);
+    for (int c = 0; c < (p.colour ? 3 : 1); ++c) {
+      l.lo[off + c] = lo;
+      l.hi[off + c] = hi;
+    }
+    bounded[i] = true;
+  }
+  const auto kind = [](const ParamInfo& p) {
+    return std::string(p.colour ? "a colour (r:g:b)" : "a scalar") +
+           (p.scale == ParamInfo::Scale::kLog ? " on a log scale (a width or exponent)" : " on a linear scale");
+  };
+  for (const auto& [name, value] : Assignments("tie", o.tie)) {
+    const std::size_t i = FindParam(info, "tie", name);
+    const std::size_t j = FindParam(info, "tie", value);
+    if (tied[i] >= 0) throw std::invalid_argument("tie: '" + name + "' is tied twice");
+    if (fixed[i]) throw std::invalid_argument("tie: '" + name + "' is both fixed and tied");
+    if (bounded[i])
+      throw std::invalid_argument("tie: '" + name + "' has bounds of its own; bound '" + value +
+                                  "', the parameter it follows");
+    const ParamInfo &a = info.params[i], &b = info.params[j];
+    if (a.colour != b.colour || a.scale != b.scale)
+      throw std::invalid_argument("tie: '" + name + "' (" + kind(a) + ") and '" + value + "' (" + kind(b) +
+                                  ") are parameters of different kinds");
+    tied[i] = int(j);
+  }
+  for (std::size_t i = 0; i < np; ++i) {
+    if (tied[i] < 0) continue;
+    std::vector<std::size_t> path = {i};
+    for (int k = tied[i]; k >= 0; k = tied[std::size_t(k)]) {
+      if (std::find(path.begin(), path.end(), std::size_t(k)) != path.end()) {
+        std::string cycle;
+        for (std::size_t q : path) cycle += info.params[q].name + " -> ";
+        throw std::invalid_argument("tie: the ties form a cycle (" + cycle + info.params[std::size_t(k)].name + ")");
+      }
+      path.push_back(std::size_t(k));
+    }
+    const std::size_t root = path.back();
+    for (int c = 0; c < (info.params[i].colour ? 3 : 1); ++c)
+      l.leader[info.Offset(i) + c] = int(info.Offset(root) + c);
+  }
+  l.Renumber();
+  for (std::size_t i = 0; i < np; ++i) {
+    if (tied[i] < 0) continue;
+    const std::size_t off = info.Offset(i);
+    for (int c = 0; c < (info.params[i].colour ? 3 : 1); ++c) {
+      const std::size_t k = off + c, lead = std::size_t(l.leader[k]);
+      const std::string follows = "tie: '" + info.params[i].name + "' follows '" + info.params[tied[i] >= 0 ? std::size_t(tied[i]) : i].name + "'";
+      if (l.free_of[k] < 0) {
+        l.value[k] = l.value[lead];
+        if (l.value[k] < l.lo[k] || l.value[k] > l.hi[k])
+          throw std::invalid_argument(follows + ", fixed at " + FormatDouble(l.value[k]) + ", outside its range " +
+                                      Range(l.lo[k], l.hi[k]));
+      } else if (std::max(l.lo[k], l.lo[lead]) >= std::min(l.hi[k], l.hi[lead])) {
+        throw std::invalid_argument(follows + ": their ranges " + Range(l.lo[k], l.hi[k]) + " and " +
+                                    Range(l.lo[lead], l.hi[lead]) + " leave nothing to fit");
+      }
+    }
+  }
+  if (l.Free() == 0)
+    throw std::invalid_argument("fix: nothing left to fit in model '" + info.name +
+                                "': every parameter is fixed or tied to a fixed one");
+  return l;
+}
+
+// ---------------------------------------------------------------------------
+// Starts of a sum of lobes.
+
+// A solution: packed user parameters and its cost on the samples it was solved on.
+struct Candidate {
+  std::vector<double> p;
+  double cost = std::numeric_limits<double>::infinity();
+  std::string origin;
+};
+
+// The packed slots of lobe k (its own and its weight).
+std::vector<std::size_t> LobeSlots(const Model& m, std::size_t k) {
+  std::vector<std::size_t> out;
+  for (std::size_t q = 0; q < m.LobeInfo(k).PackedSize(); ++q) out.push_back(m.LobeOffset(k) + q);
+  if (m.LobeWeightIndex(k) >= 0) out.push_back(std::size_t(m.LobeWeightIndex(k)));
+  return out;
+}
+
+// The slots that switch lobe k off at 0: its weight, or its colour
+// parameters whose range starts at 0.
+std::vector<std::size_t> SwitchSlots(const Model& m, std::size_t k) {
+  if (m.LobeWeightIndex(k) >= 0) return {std::size_t(m.LobeWeightIndex(k))};
+  std::vector<std::size_t> out;
+  const ModelInfo& li = m.LobeInfo(k);
+  for (std::size_t i = 0; i < li.params.size(); ++i)
+    if (li.params[i].colour && li.params[i].lower == 0)
+      for (int c = 0; c < 3; ++c) out.push_back(m.LobeOffset(k) + li.Offset(i) + std::size_t(c));
+  return out;
+}
+
+// First log-scale parameter of lobe k (its width), as a packed slot; -1 when none.
+std::ptrdiff_t WidthSlot(const Model& m, std::size_t k) {
+  const ModelInfo& li = m.LobeInfo(k);
+  for (std::size_t i = 0; i < li.params.size(); ++i)
+    if (li.params[i].scale == ParamInfo::Scale::kLog && !li.params[i].colour)
+      return std::ptrdiff_t(m.LobeOffset(k) + li.Offset(i));
+  return -1;
+}
+
+// Multi-start and nested sub-sums of a sum of lobes (Fit's start strategy).
+// Level(mask) fits the sum with the lobes in `mask` switched off.
+class StartSearch {
+ public:
+  StartSearch(const Model& model, const Options& o, const Layout& base, const Prepared& full,
+              const Prepared& subset, bool sigma, Result& res, std::function<double()> elapsed)
+      : model_(model), o_(o), base_(base), full_(full), subset_(subset), sigma_(sigma), res_(res),
+        elapsed_(std::move(elapsed)) {
+    plain_options_ = o;
+    for (const ParamInfo& p : model.Info().params)
+      for (int c = 0; c < (p.colour ? 3 : 1); ++c) channel_.push_back(p.colour ? c : -1);
+    plain_options_.loss = Loss::kNone;
+    const std::size_t L = model.LobeCount();
+    const ModelInfo& info = model.Info();
+    for (std::size_t k = 0; k < L; ++k) {
+      // A lobe can be switched off (and swapped with a copy of itself) only
+      // when none of its parameters is fixed, tied or given bounds.
+      bool untouched = true;
+      for (std::size_t q : LobeSlots(model, k)) {
+        const bool leads = std::find(base.leader.begin(), base.leader.end(), int(q)) != base.leader.end();
+        untouched = untouched && base.free_of[q] >= 0 && base.leader[q] < 0 && !leads;
+      }
+      std::size_t i = 0, off = 0;
+      for (; i < info.params.size(); ++i) {
+        for (std::size_t q : LobeSlots(model, k))
+          if (q >= off && q < off + (info.params[i].colour ? 3 : 1))
+            untouched = untouched && base.lo[q] == info.params[i].lower && base.hi[q] == info.params[i].upper;
+        off += info.params[i].colour ? 3 : 1;
+      }
+      untouched_.push_back(untouched);
+    }
+  }
+
+  Candidate Level(unsigned mask, bool top) {
+    if (auto it = memo_.find(mask); it != memo_.end()) return it->second;
+    const std::size_t L = model_.LobeCount();
+    const std::string name = ActiveSpec(mask);
+    const Layout layout = LevelLayout(mask);
+    Candidate best;
+    if (layout.Free() == 0) return memo_[mask] = best;
+    const Engine plain(evaluators_, plain_options_, 1.0, layout);
+    std::vector<std::size_t> active;
+    for (std::size_t k = 0; k < L; ++k)
+      if (!(mask >> k & 1u)) active.push_back(k);
+
+    // Nested sub-sums: each lobe switched off in turn (of copies of one
+    // lobe, only the last: the others give the same sub-sum).
+    std::vector<std::pair<Candidate, std::size_t>> kids;
+    if (o_.nested && active.size() >= 2)
+      for (auto it = active.rbegin(); it != active.rend(); ++it) {
+        const std::size_t k = *it;
+        if (!untouched_[k]) continue;
+        bool copy_done = false;
+        for (const auto& kid : kids)
+          copy_done = copy_done || (untouched_[kid.second] && model_.LobeInfo(kid.second).name == model_.LobeInfo(k).name);
+        if (copy_done) continue;
+        const Candidate c = Level(mask | (1u << k), false);
+        if (std::isfinite(c.cost)) kids.emplace_back(c, k);
+      }
+
+    // Starts on the subset: the multi-start grid over the widths, then each
+    // sub-sum's optimum with the lobe switched back on, at each start width
+    // and scaled to the sub-sum's residual.
+    std::vector<Candidate> starts;
+    for (std::vector<double>& p : GridStarts(layout, mask)) starts.push_back({std::move(p), 0, ""});
+    for (const auto& [kid, k] : kids)
+      for (std::vector<double>& p : Seeded(plain, kid.p, k, layout))
+        starts.push_back({std::move(p), 0, "(" + model_.LobePrefix(k) + " added to " + ActiveSpec(mask | (1u << k)) + ")"});
+    std::vector<Candidate> solved;
+    for (Candidate& s : starts) {
+      const std::string label = name + ": start " + std::to_string(res_.starts + 1);
+      Candidate c = Solve(plain, subset_, s.p, o_.start_iterations, 1e-8, label + " (subset)");
+      c.origin = label + (s.origin.empty() ? "" : " " + s.origin);
+      if (std::isfinite(c.cost)) solved.push_back(std::move(c));
+    }
+    std::sort(solved.begin(), solved.end(), [](const Candidate& a, const Candidate& b) { return a.cost < b.cost; });
+
+    // Every sub-sum's optimum (refined on all samples) and the best distinct
+    // optima of the subset, by their cost on all samples. The best is
+    // refined on all samples (at the top level by Fit's final solve); a
+    // refinement starts at that cost and only descends, so a sum is never
+    // worse than its nested sub-sums.
+    std::vector<Candidate> candidates;
+    for (const auto& [kid, k] : kids) candidates.push_back({kid.p, kid.cost, "nested " + ActiveSpec(mask | (1u << k))});
+    std::vector<Candidate> distinct;
+    for (const Candidate& c : solved) {
+      // The best four distinct subset optima: each costs a pass over all samples.
+      if (distinct.size() == 4) break;
+      if (Contains(plain, distinct, c.p)) continue;
+      distinct.push_back(c);
+      candidates.push_back({c.p, FullCost(plain, c.p), c.origin + " (subset optimum)"});
+    }
+    std::sort(candidates.begin(), candidates.end(), [](const Candidate& x, const Candidate& y) { return x.cost < y.cost; });
+    std::vector<Candidate> optima;
+    for (const Candidate& c : candidates)
+      if (std::isfinite(c.cost) && !Contains(plain, optima, c.p)) optima.push_back(c);
+    if (optima.empty()) return memo_[mask] = best;
+    if (top) {
+      for (const Candidate& c : optima) res_.local_optima.push_back({c.cost, c.p, c.origin});
+      best = optima.front();
+    } else {
+      best = Solve(plain, full_, optima.front().p, o_.max_iterations, o_.function_tolerance,
+                   name + ": refine (all samples)");
+      if (!(best.cost <= optima.front().cost)) best = optima.front();
+    }
+    return memo_[mask] = best;
+  }
+
+ private:
+  std::string ActiveSpec(unsigned mask) const {
+    std::string s;
+    for (std::size_t k = 0; k < model_.LobeCount(); ++k)
+      if (!(mask >> k & 1u)) s += (s.empty() ? "" : "+") + model_.LobePrefix(k);
+    return s;
+  }
+
+  // The base layout with the lobes in `mask` switched off and the rest of
+  // their parameters held (they have no effect).
+  Layout LevelLayout(unsigned mask) const {
+    Layout l = base_;
+    for (std::size_t k = 0; k < model_.LobeCount(); ++k) {
+      if (!(mask >> k & 1u)) continue;
+      for (std::size_t q : LobeSlots(model_, k)) l.free_of[q] = -1;
+      for (std::size_t q : SwitchSlots(model_, k)) l.value[q] = 0;
+    }
+    l.Renumber();
+    return l;
+  }
+
+  // Whether p is within 1e-3 (internal units: relative for widths) of a solution in `set`.
+  bool Contains(const Engine& e, const std::vector<Candidate>& set, const std::vector<double>& p) const {
+    const std::vector<double> u = e.ToInternal(p);
+    for (const Candidate& c : set) {
+      const std::vector<double> v = e.ToInternal(c.p);
+      double d = 0;
+      for (std::size_t j = 0; j < u.size(); ++j) d = std::max(d, std::abs(u[j] - v[j]));
+      if (d < 1e-3) return true;
+    }
+    return false;
+  }
+
+  // Copies of one lobe, none touched by fix/tie/bounds, all active: sorted
+  // by width so that the symmetric copies of a solution are one.
+  void Canonical(std::vector<double>& p, unsigned mask) const {
+    const std::size_t L = model_.LobeCount();
+    std::vector<bool> done(L, false);
+    for (std::size_t a = 0; a < L; ++a) {
+      if (done[a] || (mask >> a & 1u) || !untouched_[a] || WidthSlot(model_, a) < 0) continue;
+      std::vector<std::size_t> group;
+      for (std::size_t b = a; b < L; ++b)
+        if (!(mask >> b & 1u) && untouched_[b] && model_.LobeInfo(b).name == model_.LobeInfo(a).name) {
+          group.push_back(b);
+          done[b] = true;
+        }
+      if (group.size() < 2) continue;
+      std::vector<std::vector<double>> blocks;
+      for (std::size_t k : group) {
+        std::vector<double> v;
+        for (std::size_t q : LobeSlots(model_, k)) v.push_back(p[q]);
+        blocks.push_back(v);
+      }
+      const std::size_t w = std::size_t(WidthSlot(model_, a)) - model_.LobeOffset(a);
+      std::stable_sort(blocks.begin(), blocks.end(), [w](const auto& x, const auto& y) { return x[w] < y[w]; });
+      for (std::size_t g = 0; g < group.size(); ++g) {
+        const std::vector<std::size_t> slots = LobeSlots(model_, group[g]);
+        for (std::size_t q = 0; q < slots.size(); ++q) p[slots[q]] = blocks[g][q];
+      }
+    }
+  }
+
+  // Log-spaced values of a log-scale parameter (packed slot k) within its bounds.
+  std::vector<double> Widths(const Layout& layout, std::size_t k, double default_value) const {
+    const int K = std::max(1, o_.starts_per_param);
+    if (K == 1) return {std::clamp(default_value, layout.lo[k], layout.hi[k])};
+    double l = std::max(layout.lo[k] > 0 ? layout.lo[k] : 0.0, default_value / 30.0);
+    double h = std::min(layout.hi[k], default_value * 30.0);
+    if (!(l < h)) {  // bounds away from the default: span them
+      l = layout.lo[k] > 0 ? layout.lo[k] : 1e-3 * layout.hi[k];
+      h = layout.hi[k];
+    }
+    std::vector<double> out;
+    for (int q = 0; q < K; ++q) out.push_back(std::exp(std::log(l) + (std::log(h) - std::log(l)) * q / (K - 1)));
+    return out;
+  }
+
+  // Every combination of start widths of the free log-scale parameters
+  // (copies of one lobe in increasing order; beyond 64 the diagonal).
+  std::vector<std::vector<double>> GridStarts(const Layout& layout, unsigned mask) const {
+    const ModelInfo& info = model_.Info();
+    std::vector<double> start = layout.value;
+    std::vector<std::size_t> slots, sizes;      // leading packed slot and size of each free log parameter
+    std::vector<std::vector<double>> values;
+    std::vector<std::ptrdiff_t> lobe_of;        // its lobe when that is an untouched active copy, else -1
+    std::size_t off = 0;
+    for (const ParamInfo& p : info.params) {
+      const std::size_t width = p.colour ? 3 : 1;
+      if (p.scale == ParamInfo::Scale::kLog && layout.free_of[off] >= 0 && layout.leader[off] < 0) {
+        slots.push_back(off);
+        sizes.push_back(width);
+        values.push_back(Widths(layout, off, p.default_value));
+        std::ptrdiff_t lobe = -1;
+        for (std::size_t k = 0; k < model_.LobeCount(); ++k)
+          if (WidthSlot(model_, k) == std::ptrdiff_t(off) && untouched_[k] && !(mask >> k & 1u)) lobe = std::ptrdiff_t(k);
+        lobe_of.push_back(lobe);
+      }
+      off += width;
+    }
+    const auto ordered = [&](const std::vector<int>& c) {
+      for (std::size_t a = 0; a < c.size(); ++a)
+        for (std::size_t b = a + 1; b < c.size(); ++b)
+          if (lobe_of[a] >= 0 && lobe_of[b] >= 0 &&
+              model_.LobeInfo(std::size_t(lobe_of[a])).name == model_.LobeInfo(std::size_t(lobe_of[b])).name &&
+              !(c[a] < c[b]))
+            return false;
+      return true;
+    };
+    const int K = std::max(1, o_.starts_per_param);
+    double total = 1;
+    for (std::size_t j = 0; j < slots.size(); ++j) total *= K;
+    std::vector<std::vector<int>> combos;
+    if (slots.empty()) {
+      combos.push_back({});
+    } else if (total <= 64) {
+      std::vector<int> c(slots.size(), 0);
+      while (true) {
+        if (ordered(c)) combos.push_back(c);
+        std::size_t j = 0;
+        while (j < c.size() && ++c[j] == K) c[j++] = 0;
+        if (j == c.size()) break;
+      }
+      if (combos.empty()) combos.push_back(std::vector<int>(slots.size(), 0));
+    } else {
+      for (int k = 0; k < K; ++k) combos.push_back(std::vector<int>(slots.size(), k));
+    }
+    std::vector<std::vector<double>> out;
+    for (const std::vector<int>& c : combos) {
+      std::vector<double> p = start;
+      for (std::size_t j = 0; j < slots.size(); ++j) {
+        const double v = values[j][std::size_t(std::min<int>(c[j], int(values[j].size()) - 1))];
+        for (std::size_t q = 0; q < sizes[j]; ++q) p[slots[j] + q] = v;
+      }
+      out.push_back(std::move(p));
+    }
+    return out;
+  }
+
+  // The sub-sum's optimum p (lobe k off) with lobe k switched back on at
+  // each start width, its switch scaled by least squares to the residual
+  // the sub-sum leaves on the subset.
+  std::vector<std::vector<double>> Seeded(const Engine& e, const std::vector<double>& p, std::size_t k,
+                                          const Layout& layout) const {
+    const ModelInfo& info = model_.Info();
+    const std::ptrdiff_t ws = WidthSlot(model_, k);
+    std::vector<double> widths = {ws >= 0 ? p[std::size_t(ws)] : 0.0};
+    if (ws >= 0) {
+      std::size_t i = 0, off = 0;
+      while (off + (info.params[i].colour ? 3 : 1) <= std::size_t(ws)) off += info.params[i++].colour ? 3 : 1;
+      widths = Widths(layout, std::size_t(ws), info.params[i].default_value);
+    }
+    const std::vector<std::size_t> sw = SwitchSlots(model_, k);
+    const std::vector<double> defaults = info.Defaults();
+    std::vector<std::vector<double>> out;
+    for (double width : widths) {
+      std::vector<double> on = p;
+      for (std::size_t q : LobeSlots(model_, k)) on[q] = defaults[q];
+      if (ws >= 0) on[std::size_t(ws)] = width;
+      // Per channel for colour switches, one scale for a weight.
+      Eigen::Array3d rg = Eigen::Array3d::Zero(), gg = Eigen::Array3d::Zero();
+      for (std::size_t q = 0; q < subset_.size(); ++q) {
+        const Eigen::Array3d base = e.Predict(p, subset_, q), with = e.Predict(on, subset_, q);
+        const Eigen::Array3d g = with - base, r = subset_.reference[q] - base;
+        rg += r * g;
+        gg += g * g;
+      }
+      for (std::size_t q : sw) {
+        const int c = channel_[q];  // -1: a weight, scaling all channels
+        const double num = c < 0 ? rg.sum() : rg[c], den = c < 0 ? gg.sum() : gg[c];
+        const double scale = den > 0 ? num / den : 0.0;
+        // A small positive floor: at 0 the lobe's other parameters have no gradient.
+        on[q] = std::clamp(on[q] * std::max(scale, 1e-3), layout.lo[q], layout.hi[q]);
+      }
+      out.push_back(std::move(on));
+    }
+    return out;
+  }
+
+  // Cost (half the sum of squared residuals) of p on all samples.
+  double FullCost(const Engine& e, const std::vector<double>& p) const {
+    const std::vector<double> u = e.ToInternal(p);
+    const std::size_t n = full_.size(), chunk = 256;
+    const std::size_t workers = static_cast<std::size_t>(std::max(1, o_.num_threads));
+    std::vector<double> sums(workers, 0.0);
+    std::vector<std::thread> pool;
+    for (std::size_t w = 0; w < workers; ++w)
+      pool.emplace_back([&, w] {
+        std::vector<double> r(3 * chunk);
+        const std::size_t begin = n * w / workers, end = n * (w + 1) / workers;
+        for (std::size_t b = begin; b < end; b += chunk) {
+          const std::size_t e_end = std::min(end, b + chunk);
+          // A non-finite residual makes the point unusable.
+          if (!e.EvalDouble(u.data(), full_, b, e_end, true, r.data())) {
+            sums[w] = std::numeric_limits<double>::infinity();
+            return;
+          }
+          for (std::size_t k = 0; k < 3 * (e_end - b); ++k) sums[w] += 0.5 * r[k] * r[k];
+        }
+      });
+    for (auto& t : pool) t.join();
+    return std::accumulate(sums.begin(), sums.end(), 0.0);
+  }
+
+  // Solves from p over `d` for at most `iterations`; the solution is put in
+  // canonical order.
+  Candidate Solve(const Engine& e, const Prepared& d, const std::vector<double>& p, int iterations, double ftol,
+                  const std::string& stage) {
+    std::vector<double> u = e.ToInternal(p);
+    std::vector<double> lo, hi;
+    Bounds(e.layout(), e.log_mask(), lo, hi);
+    for (std::size_t j = 0; j < u.size(); ++j) u[j] = std::clamp(u[j], lo[j], hi[j]);
+    ceres::Problem problem;
+    BuildProblem(problem, e, d, std::max<std::size_t>(1, o_.chunk), u);
+    ceres::Solver::Options so = SolverOptions(o_, LinearSolver::kDenseQr, iterations);
+    so.function_tolerance = ftol;
+    so.update_state_every_iteration = sigma_;  // the RMSE below reads u
+    const int start = ++res_.starts;
+    TraceCallback callback([&](const ceres::IterationSummary& s) {
+      if (s.iteration > 0 && !s.step_is_successful) return;
+      // Without sigma the plain engine's cost is the metric's sum of squares / 2.
+      const double rmse = sigma_ ? Rmse(e, d, u, o_.num_threads) : std::sqrt(2 * s.cost / (3.0 * d.size()));
+      res_.trace.push_back({s.iteration, elapsed_(), s.cost, rmse, start, stage});
+    });
+    so.callbacks.push_back(&callback);
+    ceres::Solver::Summary summary;
+    ceres::Solve(so, &problem, &summary);
+    Candidate c;
+    if (!summary.IsSolutionUsable()) return c;
+    c.p = e.ToUser(u);
+    c.cost = summary.final_cost;
+    unsigned mask = 0;
+    for (std::size_t k = 0; k < model_.LobeCount(); ++k)
+      for (std::size_t q : SwitchSlots(model_, k))
+        if (e.layout().free_of[q] < 0 && e.layout().value[q] == 0 && untouched_[k]) mask |= 1u << k;
+    Canonical(c.p, mask);
+    return c;
+  }
+
+  const Model& model_;
+  const ModelEvaluators evaluators_{model_};
+  const Options& o_;
+  Options plain_options_;
+  const Layout& base_;
+  const Prepared& full_;
+  const Prepared& subset_;
+  bool sigma_;
+  Result& res_;
+  std::function<double()> elapsed_;
+  std::vector<bool> untouched_;
+  std::vector<int> channel_;  // packed slot -> channel of a colour parameter, else -1
+  std::map<unsigned, Candidate> memo_;
+};
+
 }  // namespace
+
+void CheckConstraints(const ModelInfo& info, const Options& options) { MakeLayout(info, options); }
 
 double MetricRmse(const Model& model, const std::vector<double>& params, const Dataset& data,
                   const Options& options) {
   const Selection sel = Select(data, options);
   const Prepared d = Prepare(data, sel.index, options);
-  const Engine e(ModelEvaluators(model), options, 1.0);
+  const Engine e(ModelEvaluators(model), options, 1.0, AllFree(model.Info()));
   return Rmse(e, d, e.ToInternal(params), options.num_threads);
 }
 
 struct ResidualBlocks::Impl {
   Impl(const Model& model, const Dataset& data, const Options& o, double loss_scale)
-      : engine(ModelEvaluators(model), o, loss_scale), prepared(Prepare(data, Select(data, o).index, o)) {
+      : engine(ModelEvaluators(model), o, loss_scale, AllFree(model.Info())), prepared(Prepare(data, Select(data, o).index, o)) {
     const std::size_t chunk = std::max<std::size_t>(1, o.chunk);
     for (std::size_t b = 0; b < prepared.size(); b += chunk)
       blocks.push_back(std::make_unique<ChunkCost>(&engine, &prepared, b, std::min(prepared.size(), b + chunk)));
@@ -878,14 +1483,16 @@ Result Fit(const Evaluators& model, const Dataset& data, const Options& options)
   const std::size_t chunk = std::max<std::size_t>(1, o.chunk);
 
   // Engine without a robust loss for the start search; its scale is chosen below.
+  const Layout layout = MakeLayout(info, o);
   Options plain_options = o;
   plain_options.loss = Loss::kNone;
-  const Engine plain(model, plain_options, 1.0);
+  const Engine plain(model, plain_options, 1.0, layout);
+  const std::size_t nf = layout.Free();
 
   std::vector<double> lo, hi;
-  Bounds(info, plain.log_mask(), lo, hi);
+  Bounds(layout, plain.log_mask(), lo, hi);
   auto clamp_internal = [&](std::vector<double>& u) {
-    for (std::size_t k = 0; k < n; ++k) u[k] = std::clamp(u[k], lo[k], hi[k]);
+    for (std::size_t k = 0; k < nf; ++k) u[k] = std::clamp(u[k], lo[k], hi[k]);
   };
 
   // A fixed pseudo-random choice of `count` samples, so runs repeat.
@@ -908,6 +1515,9 @@ Result Fit(const Evaluators& model, const Dataset& data, const Options& options)
 
   // --- initialisation ---------------------------------------------------
   std::vector<double> best_u;
+  // Only a registered model's sum has lobes to switch off and add back.
+  const Model* sum = model.AsModel();
+  const bool search_sum = o.initial.empty() && sum && sum->LobeCount() >= 2;
   if (!o.initial.empty()) {
     if (o.initial.size() != n)
       throw std::invalid_argument("initial guess has " + std::to_string(o.initial.size()) + " values, model '" +
@@ -915,19 +1525,38 @@ Result Fit(const Evaluators& model, const Dataset& data, const Options& options)
     best_u = plain.ToInternal(o.initial);
     clamp_internal(best_u);
     res.starts = 1;
+  } else if (search_sum) {
+    // Sums: nested sub-sums and the multi-start, each refined on all
+    // samples (StartSearch); the best of these local optima is kept.
+    const Prepared subset = Prepare(data, subset_index(o.start_subset), o);
+    StartSearch search(*sum, o, layout, full, subset, sigma, res, elapsed);
+    const Candidate best = search.Level(0, true);
+    if (!std::isfinite(best.cost))
+      throw std::runtime_error("no starting point gave a finite residual for model '" + info.name + "'");
+    for (std::size_t q = 0; q < res.local_optima.size(); ++q)
+      if (res.local_optima[q].params == best.p) res.kept = int(q);
+    best_u = plain.ToInternal(best.p);
+    clamp_internal(best_u);
   } else {
     // Starts: every combination of log-spaced values of the log-scale
     // parameters (at most 64; beyond that the diagonal of the grid), other
     // parameters at their defaults.
-    std::vector<std::size_t> log_params;  // indices into info.params
+    std::vector<std::size_t> log_params;  // indices into info.params, free ones
     for (std::size_t i = 0; i < info.params.size(); ++i)
-      if (info.params[i].scale == ParamInfo::Scale::kLog) log_params.push_back(i);
+      if (info.params[i].scale == ParamInfo::Scale::kLog && layout.free_of[info.Offset(i)] >= 0 &&
+          layout.leader[info.Offset(i)] < 0)
+        log_params.push_back(i);
     const int K = std::max(1, o.starts_per_param);
     auto value = [&](std::size_t i, int k) {
       const ParamInfo& p = info.params[i];
-      if (K == 1) return p.default_value;
-      const double l = std::max(p.lower > 0 ? p.lower : 0.0, p.default_value / 30.0);
-      const double h = std::min(p.upper, p.default_value * 30.0);
+      const double lower = layout.lo[info.Offset(i)], upper = layout.hi[info.Offset(i)];
+      if (K == 1) return std::clamp(p.default_value, lower, upper);
+      double l = std::max(lower > 0 ? lower : 0.0, p.default_value / 30.0);
+      double h = std::min(upper, p.default_value * 30.0);
+      if (!(l < h)) {  // bounds away from the default: span them
+        l = lower > 0 ? lower : 1e-3 * upper;
+        h = upper;
+      }
       return std::exp(std::log(l) + (std::log(h) - std::log(l)) * k / (K - 1));
     };
     std::vector<std::vector<int>> combos;
@@ -948,9 +1577,8 @@ Result Fit(const Evaluators& model, const Dataset& data, const Options& options)
     }
     const Prepared subset = Prepare(data, subset_index(o.start_subset), o);
     double best_cost = std::numeric_limits<double>::infinity();
-    const std::vector<double> defaults = info.Defaults();
     for (const std::vector<int>& c : combos) {
-      std::vector<double> p = defaults;
+      std::vector<double> p = layout.value;
       for (std::size_t j = 0; j < log_params.size(); ++j) {
         const std::size_t i = log_params[j];
         for (int ch = 0; ch < (info.params[i].colour ? 3 : 1); ++ch) p[info.Offset(i) + ch] = value(i, c[j]);
@@ -959,7 +1587,7 @@ Result Fit(const Evaluators& model, const Dataset& data, const Options& options)
       clamp_internal(u);
       ceres::Problem::Options po;
       ceres::Problem problem(po);
-      BuildProblem(problem, plain, subset, chunk, info, u);
+      BuildProblem(problem, plain, subset, chunk, u);
       ceres::Solver::Options so = SolverOptions(o, LinearSolver::kDenseQr, o.start_iterations);
       so.function_tolerance = 1e-8;
       so.update_state_every_iteration = sigma;  // the RMSE below reads u
@@ -968,7 +1596,7 @@ Result Fit(const Evaluators& model, const Dataset& data, const Options& options)
         if (s.iteration > 0 && !s.step_is_successful) return;
         // Without sigma the plain engine's cost is the metric's sum of squares / 2.
         const double rmse = sigma ? Rmse(plain, subset, u, o.num_threads) : std::sqrt(2 * s.cost / (3.0 * subset.size()));
-        res.trace.push_back({s.iteration, elapsed(), s.cost, rmse, start});
+        res.trace.push_back({s.iteration, elapsed(), s.cost, rmse, start, "start " + std::to_string(start) + " (subset)"});
       });
       so.callbacks.push_back(&callback);
       ceres::Solver::Summary summary;
@@ -986,11 +1614,11 @@ Result Fit(const Evaluators& model, const Dataset& data, const Options& options)
   // Coarse to fine: on large tables the best start is first refined on a
   // 16x larger subset, so the full solve (whose iterations cost the most)
   // starts near its optimum and needs only a few.
-  if (o.initial.empty() && full.size() > 64 * o.start_subset) {
+  if (o.initial.empty() && !search_sum && full.size() > 64 * o.start_subset) {
     const Prepared middle = Prepare(data, subset_index(16 * o.start_subset), o);
     ceres::Problem problem;
     std::vector<double> u = best_u;
-    BuildProblem(problem, plain, middle, chunk, info, u);
+    BuildProblem(problem, plain, middle, chunk, u);
     ceres::Solver::Options so = SolverOptions(o, LinearSolver::kDenseQr, o.max_iterations);
     so.function_tolerance = 1e-10;
     ceres::Solver::Summary summary;
@@ -1022,14 +1650,14 @@ Result Fit(const Evaluators& model, const Dataset& data, const Options& options)
     }
   }
   res.loss_scale = o.loss != Loss::kNone ? loss_scale : 0.0;
-  const Engine engine(model, o, loss_scale);
+  const Engine engine(model, o, loss_scale, layout);
   res.init_seconds = elapsed();
 
   // --- final solve on all samples -------------------------------------------
   std::vector<double> u = best_u;
   ceres::Problem::Options po;
   ceres::Problem problem(po);
-  BuildProblem(problem, engine, full, chunk, info, u);
+  BuildProblem(problem, engine, full, chunk, u);
   ceres::Solver::Options so = SolverOptions(o, o.solver, o.max_iterations);
   const std::size_t m = 3 * full.size();
   const bool weights_are_metric = !sigma && o.loss == Loss::kNone;
@@ -1037,6 +1665,7 @@ Result Fit(const Evaluators& model, const Dataset& data, const Options& options)
   TraceCallback callback([&](const ceres::IterationSummary& s) {
     if (s.iteration > 0 && !s.step_is_successful) return;
     TracePoint tp;
+    tp.stage = "final";
     tp.iteration = s.iteration;
     tp.seconds = res.init_seconds + s.cumulative_time_in_seconds;
     tp.cost = s.cost;
@@ -1060,7 +1689,17 @@ Result Fit(const Evaluators& model, const Dataset& data, const Options& options)
   res.residuals = m;
   // Residual variance: chi^2 / dof with sigma weights; otherwise the scale
   // of the unweighted residuals, which only the covariance uses.
-  const double residual_variance = m > n ? 2 * res.cost / static_cast<double>(m - n) : 0.0;
+  const double residual_variance = m > nf ? 2 * res.cost / static_cast<double>(m - nf) : 0.0;
+  res.fixed.assign(n, false);
+  res.tied_to.assign(n, "");
+  for (std::size_t k = 0; k < n; ++k) {
+    res.fixed[k] = layout.free_of[k] < 0;
+    if (layout.leader[k] >= 0) res.tied_to[k] = res.packed_names[std::size_t(layout.leader[k])];
+  }
+  if (res.local_optima.empty()) {
+    res.local_optima.push_back({res.cost, res.params, o.initial.empty() ? "multi-start" : "initial"});
+    res.kept = 0;
+  }
   res.chi2_reduced = sigma ? residual_variance : std::numeric_limits<double>::quiet_NaN();
   res.rmse = Rmse(engine, full, u, o.num_threads);
   RelativeErrors(engine, full, res.params, o.num_threads, res);
@@ -1082,11 +1721,13 @@ Result Fit(const Evaluators& model, const Dataset& data, const Options& options)
   // --- uncertainty ------------------------------------------------------------
   res.stddev.assign(n, std::numeric_limits<double>::quiet_NaN());
   if (o.covariance) {
-    if (m <= n) {
+    std::vector<std::string> free_names;
+    for (std::size_t j = 0; j < nf; ++j) free_names.push_back(res.packed_names[layout.rep[j]]);
+    if (m <= nf) {
       res.covariance_message = "no uncertainty: as many parameters as residuals";
     } else {
       const Eigen::MatrixXd jtj = NormalMatrix(engine, full, u, chunk, o.num_threads);
-      const std::string why = Identifiability(jtj, res.packed_names);
+      const std::string why = Identifiability(jtj, free_names);
       if (!why.empty()) {
         res.covariance_message = "no uncertainty: the problem is rank deficient: " + why;
       } else {
@@ -1097,17 +1738,20 @@ Result Fit(const Evaluators& model, const Dataset& data, const Options& options)
         const Eigen::VectorXd unit = jtj.diagonal().cwiseSqrt().cwiseInverse();
         const Eigen::MatrixXd a = unit.asDiagonal() * jtj * unit.asDiagonal();
         const Eigen::LDLT<Eigen::MatrixXd> ldlt(a);
-        const auto nn = static_cast<Eigen::Index>(n);
+        const auto nn = static_cast<Eigen::Index>(nf);
         const Eigen::MatrixXd cu =
             unit.asDiagonal() * ldlt.solve(Eigen::MatrixXd::Identity(nn, nn)) * unit.asDiagonal();
         if (ldlt.info() != Eigen::Success || !ldlt.isPositive() || !cu.allFinite()) {
           res.covariance_message =
               "no uncertainty: the covariance could not be computed (the Jacobian is numerically rank deficient)";
         } else {
-          // Back to the user's parameters: dp/du = p for log-scale ones.
-          Eigen::VectorXd jd(n);
-          for (std::size_t k = 0; k < n; ++k) jd(k) = engine.log_mask()[k] ? res.params[k] : 1.0;
-          Eigen::MatrixXd cp = jd.asDiagonal() * cu * jd.asDiagonal();
+          // Back to the user's parameters: dp/du = p for log-scale ones; a
+          // fixed slot has no variance, a tied one its leader's.
+          Eigen::MatrixXd jd = Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(n), nn);
+          for (std::size_t k = 0; k < n; ++k)
+            if (const int j = layout.free_of[k]; j >= 0)
+              jd(static_cast<Eigen::Index>(k), j) = engine.log_mask()[std::size_t(j)] ? res.params[k] : 1.0;
+          Eigen::MatrixXd cp = jd * cu * jd.transpose();
           // Without measured sigma the residual variance sets the scale.
           if (!sigma) cp *= residual_variance;
           res.correlation.resize(n, n);
@@ -1120,8 +1764,8 @@ Result Fit(const Evaluators& model, const Dataset& data, const Options& options)
           res.covariance_ok = true;
           // Active bounds: the Gaussian uncertainty ignores them.
           std::string at_bound;
-          for (std::size_t k = 0; k < n; ++k)
-            if (u[k] <= lo[k] || u[k] >= hi[k]) at_bound += (at_bound.empty() ? "" : ", ") + res.packed_names[k];
+          for (std::size_t k = 0; k < nf; ++k)
+            if (u[k] <= lo[k] || u[k] >= hi[k]) at_bound += (at_bound.empty() ? "" : ", ") + free_names[k];
           if (!at_bound.empty())
             res.covariance_message = "parameters at a bound (their uncertainty ignores the bound): " + at_bound;
         }

@@ -139,9 +139,29 @@ struct Options {
   // Fit through the instrument's finite apertures (data_synth forward model).
   const synth::Instrument* instrument = nullptr;
   int aperture_order = 0;  // 0: the instrument's own setting, or 3 when automatic
+  // Parameters held fixed, tied to another, or bounded more narrowly than
+  // the model's table, each "name=...,name=..." over the model's parameter
+  // names ("ggx.f0", "ggx#2.alpha"):
+  //   fix     name=value (a colour parameter: one value or r:g:b)
+  //   tie     follower=leader: the follower takes the leader's value; both
+  //           colour or both scalar, on the same scale (log or linear)
+  //   bounds  name=lo:hi within the model's range (all channels of a colour)
+  std::string fix, tie, bounds;
+  // Sums of lobes: also fit every nested sub-sum (each lobe switched off in
+  // turn) and start from its optimum with the lobe seeded from the
+  // residual, so that the fit is never worse than a sub-sum's (see Fit).
+  bool nested = true;
   // Called after every iteration of the final solve (progress display).
   std::function<void(int iteration, double seconds, double cost)> progress;
 };
+
+// Checks Options::fix, tie and bounds against the model; throws
+// std::invalid_argument naming the option and the parameter: an unknown
+// name (with the nearest names), a value or bounds outside the model's
+// range, inverted bounds, a parameter both fixed and tied or bounded, a tie
+// between parameters of different kinds or sizes, a tie cycle, and a model
+// with nothing left to fit.
+void CheckConstraints(const ModelInfo& info, const Options& options);
 
 // One accepted iteration. The multi-start solves (start = 1, 2, ...) run on
 // their subset of the samples and report its RMSE; start = 0 is the final
@@ -152,6 +172,17 @@ struct TracePoint {
   double cost = 0;
   double rmse = 0;     // root mean square of the metric's residuals
   int start = 0;
+  // What the solve was: "start 3 (subset)", "lambert+ggx: refine (all
+  // samples)" for the sub-sums and starts of a sum, "final".
+  std::string stage;
+};
+
+// A distinct local optimum of the fit on all samples (without the robust
+// loss): its cost, packed user parameters, and where its solve started.
+struct LocalOptimum {
+  double cost = 0;
+  std::vector<double> params;
+  std::string origin;
 };
 
 // Relative error of a fitted model against the data it was fitted to:
@@ -202,6 +233,16 @@ struct Result {
   std::string message;
   double loss_scale = 0;
   std::vector<TracePoint> trace;
+  // Every distinct local optimum found on all samples, by increasing cost;
+  // the final solve started from local_optima[kept]. A fit from
+  // Options::initial or a single-lobe multi-start solves on all samples
+  // once: its one entry is the final result.
+  std::vector<LocalOptimum> local_optima;
+  int kept = -1;
+  // Per packed slot: held fixed (stddev 0), and the name of the parameter a
+  // tied one follows (empty otherwise; it reports that parameter's stddev).
+  std::vector<bool> fixed;
+  std::vector<std::string> tied_to;
 };
 
 Result Fit(const Model& model, const Dataset& data, const Options& options);

@@ -413,5 +413,232 @@ TEST(Fit, CliFitsWritesJsonAndReusesTheFit) {
   fs::remove_all(dir);
 }
 
+
+// Every lobe of a sum can be switched off: with its weight (or, for a lobe
+// declaring kVanishes, its colour parameters from 0) at 0 the sum is the
+// other lobe alone, at every direction pair, for every analytic model.
+TEST(Fit, EveryLobeOfASumSwitchesOff) {
+  const auto pairs = Directions(40, 12);
+  for (const ModelInfo& info : RegisteredModelInfos()) {
+    if (!info.settings.empty() || info.params.empty()) continue;  // measured data, not fitted
+    SCOPED_TRACE(info.name);
+    const Model sum = Model::Parse("lambert+" + info.name);
+    const Model alone = Model::Parse("lambert");
+    std::vector<double> p = sum.Info().Defaults();
+    const std::ptrdiff_t w = sum.LobeWeightIndex(1);
+    EXPECT_EQ(w < 0, TraitsOf(info.name).vanishes);
+    EXPECT_LT(sum.LobeWeightIndex(0), 0);  // lambert's albedo switches it off
+    if (w >= 0) {
+      EXPECT_EQ(sum.Info().params.back().name, info.name + ".weight");
+      p[std::size_t(w)] = 0;
+    } else {
+      for (std::size_t i = 0; i < info.params.size(); ++i)
+        if (info.params[i].colour && info.params[i].lower == 0)
+          for (int c = 0; c < 3; ++c) p[sum.LobeOffset(1) + info.Offset(i) + std::size_t(c)] = 0;
+    }
+    const auto bs = sum.Make<double>(), ba = alone.Make<double>();
+    const std::vector<double> pa(p.begin(), p.begin() + 3);
+    bool lobe_alone_nonzero = false;
+    std::vector<double> one = sum.Info().Defaults();
+    for (const auto& [wi, wo] : pairs) {
+      const Eigen::Array3d fs = bs->Eval(p.data(), wi, wo), fa = ba->Eval(pa.data(), wi, wo);
+      for (int c = 0; c < 3; ++c) EXPECT_EQ(fs[c], fa[c]);
+      lobe_alone_nonzero = lobe_alone_nonzero || (bs->Eval(one.data(), wi, wo) != ba->Eval(pa.data(), wi, wo)).any();
+    }
+    EXPECT_TRUE(lobe_alone_nonzero);
+    // A weight of 2 doubles the lobe: f(sum) - f(lambert) scales with it.
+    if (w >= 0) {
+      std::vector<double> two = one;
+      two[std::size_t(w)] = 2;
+      const std::vector<double> pa1(one.begin(), one.begin() + 3);
+      for (const auto& [wi, wo] : pairs) {
+        const Eigen::Array3d l = ba->Eval(pa1.data(), wi, wo);
+        const Eigen::Array3d d1 = bs->Eval(one.data(), wi, wo) - l, d2 = bs->Eval(two.data(), wi, wo) - l;
+        for (int c = 0; c < 3; ++c) EXPECT_NEAR(d2[c], 2 * d1[c], 1e-12 * (1 + std::abs(d2[c])));
+      }
+    }
+  }
+}
+
+// Data from a material outside the fitted families (Oren-Nayar diffuse, a
+// Beckmann lobe and a wide GGX haze, noisy): every sum fits at least as
+// well as each of its nested sub-sums, on the full cost.
+TEST(Fit, SumIsNeverWorseThanItsNestedSubSums) {
+  const Model truth_model = Model::Parse("oren_nayar+beckmann+ggx");
+  const std::vector<double> truth = ParseParams(
+      truth_model.Info(),
+      "oren_nayar.albedo=0.3:0.25:0.2,oren_nayar.sigma=0.4,beckmann.alpha=0.07,beckmann.f0=0.04,ggx.alpha=0.35,"
+      "ggx.f0=0.04,ggx.weight=0.25");
+  Dataset d = Synthesise(truth_model, truth, 800, 31, 0.02, 1e-4);
+  d.has_sigma = false;
+  for (Metric metric : {Metric::kCbrt, Metric::kL2}) {
+    SCOPED_TRACE(MetricName(metric));
+    Options o;
+    o.metric = metric;
+    o.covariance = false;
+    const Result three = Fit(Model::Parse("lambert+ggx+ggx"), d, o);
+    const Result two = Fit(Model::Parse("lambert+ggx"), d, o);
+    const Result twins = Fit(Model::Parse("ggx+ggx"), d, o);
+    const Result one = Fit(Model::Parse("lambert"), d, o);
+    EXPECT_LE(three.cost, two.cost * (1 + 1e-9));
+    EXPECT_LE(three.cost, twins.cost * (1 + 1e-9));
+    EXPECT_LE(two.cost, one.cost * (1 + 1e-9));
+    // The third lobe is used: strictly better than one specular lobe here.
+    EXPECT_LT(three.cost, two.cost);
+    // Copies ordered by width; the local optima sorted, the kept one the best.
+    EXPECT_LE(three.params[3], three.params[8]);  // ggx.alpha <= ggx#2.alpha
+    ASSERT_FALSE(three.local_optima.empty());
+    ASSERT_GE(three.kept, 0);
+    EXPECT_EQ(three.kept, 0);
+    for (std::size_t q = 1; q < three.local_optima.size(); ++q)
+      EXPECT_LE(three.local_optima[q - 1].cost, three.local_optima[q].cost);
+    // The final solve refines the kept optimum: never above its cost.
+    EXPECT_LE(three.cost, three.local_optima[0].cost * (1 + 1e-12));
+    bool nested = false;
+    for (const LocalOptimum& l : three.local_optima) nested = nested || l.origin.rfind("nested ", 0) == 0;
+    EXPECT_TRUE(nested);
+    // The trace covers the sub-sums and starts as well as the final solve.
+    bool sub = false;
+    for (const TracePoint& t : three.trace) sub = sub || t.stage.find("lambert+ggx: ") == 0;
+    EXPECT_TRUE(sub);
+    EXPECT_EQ(three.trace.back().stage, "final");
+  }
+}
+
+// A known two-lobe truth (a narrow and a wide GGX lobe over a diffuse
+// base) is found from the default starts, whichever order its lobes are
+// written in.
+TEST(Fit, TwoLobeTruthIsRecovered) {
+  const Model m = Model::Parse("lambert+ggx+ggx");
+  const std::vector<double> truth = ParseParams(
+      m.Info(), "lambert.albedo=0.3:0.2:0.1,ggx.alpha=0.06,ggx.f0=0.9:0.7:0.5,ggx.weight=0.8,"
+                "ggx#2.alpha=0.4,ggx#2.f0=0.5:0.5:0.6,ggx#2.weight=0.3");
+  const Dataset d = Synthesise(m, truth, 1200, 17);
+  Options o;
+  o.covariance = false;
+  const Result r = Fit(m, d, o);
+  ExpectRecovered(r, truth, 1e-4);
+  EXPECT_LT(r.rmse, 1e-7);
+  // The same material with its lobes written the other way round: the
+  // fitted copies come back ordered by width.
+  std::vector<double> swapped = truth;
+  std::rotate(swapped.begin() + 3, swapped.begin() + 8, swapped.end());
+  const Dataset d2 = Synthesise(m, swapped, 1200, 17);
+  const Result r2 = Fit(m, d2, o);
+  ExpectRecovered(r2, truth, 1e-4);
+}
+
+TEST(Fit, FixedParameterIsHeldAndTheRestRecovered) {
+  const Model m = Model::Parse("lambert+ggx");
+  const std::vector<double> truth = ParseParams(m.Info(), "lambert.albedo=0.4:0.3:0.2,ggx.alpha=0.12,ggx.f0=0.04");
+  Dataset d = Synthesise(m, truth, 500, 8, 0.01, 1e-4);
+  Options o;
+  o.fix = "ggx.f0=0.04,ggx.weight=1";
+  const Result r = Fit(m, d, o);
+  for (std::size_t k = 4; k < 8; ++k) {
+    EXPECT_TRUE(r.fixed[k]) << r.packed_names[k];
+    EXPECT_EQ(r.stddev[k], 0.0) << r.packed_names[k];
+  }
+  EXPECT_EQ(r.params[4], 0.04);
+  EXPECT_EQ(r.params[7], 1.0);
+  EXPECT_FALSE(r.fixed[3]);
+  ASSERT_TRUE(r.covariance_ok) << r.covariance_message;
+  EXPECT_NEAR(r.params[3], 0.12, 4 * r.stddev[3]);
+  EXPECT_LT(r.stddev[3], 0.01 * 0.12);
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(r.params[std::size_t(c)], truth[std::size_t(c)], 4 * r.stddev[std::size_t(c)]);
+  // A colour parameter fixed per channel, as parameter text elsewhere.
+  Options oc;
+  oc.fix = "lambert.albedo=0.4:0.3:0.2";
+  const Result rc = Fit(m, Synthesise(m, truth, 300, 9), oc);
+  EXPECT_EQ(rc.params[0], 0.4);
+  EXPECT_EQ(rc.params[2], 0.2);
+  EXPECT_NEAR(rc.params[3], 0.12, 1e-6);
+}
+
+// Two lobes sharing one f0: the tie recovers it, both report the same value
+// and the follower its leader's standard deviation.
+TEST(Fit, TiedParameterFollowsItsLeader) {
+  const Model m = Model::Parse("lambert+ggx+ggx");
+  const std::vector<double> truth = ParseParams(
+      m.Info(), "lambert.albedo=0.3,ggx.alpha=0.05,ggx.f0=0.9:0.7:0.5,ggx#2.alpha=0.35,ggx#2.f0=0.9:0.7:0.5,"
+                "ggx#2.weight=0.4");
+  Dataset d = Synthesise(m, truth, 900, 4, 0.01, 1e-4);
+  Options o;
+  o.tie = "ggx#2.f0=ggx.f0";
+  o.fix = "ggx.weight=1";
+  const Result r = Fit(m, d, o);
+  ASSERT_TRUE(r.covariance_ok) << r.covariance_message;
+  for (int c = 0; c < 3; ++c) {
+    const std::size_t lead = 4 + std::size_t(c), follow = 9 + std::size_t(c);
+    EXPECT_EQ(r.params[follow], r.params[lead]);
+    EXPECT_EQ(r.stddev[follow], r.stddev[lead]);
+    EXPECT_GT(r.stddev[lead], 0.0);
+    EXPECT_NEAR(r.params[lead], truth[lead], 4 * r.stddev[lead]);
+    EXPECT_EQ(r.tied_to[follow], r.packed_names[lead]);
+    EXPECT_TRUE(r.tied_to[lead].empty());
+  }
+  EXPECT_NEAR(r.params[3], 0.05, 0.05 * 0.05);
+  EXPECT_NEAR(r.params[8], 0.35, 0.05 * 0.35);
+}
+
+TEST(Fit, BoundsAreRespectedAndHoldTheOptimumOnThem) {
+  const Model m = Model::Parse("lambert+ggx");
+  const std::vector<double> truth = ParseParams(m.Info(), "lambert.albedo=0.3,ggx.alpha=0.3,ggx.f0=0.5");
+  const Dataset d = Synthesise(m, truth, 400, 6);
+  Options o;
+  o.bounds = "ggx.alpha=0.01:0.1";
+  const Result r = Fit(m, d, o);
+  EXPECT_NEAR(r.params[3], 0.1, 1e-9);  // the truth lies beyond the bound
+  EXPECT_NE(r.covariance_message.find("at a bound"), std::string::npos) << r.covariance_message;
+  for (const LocalOptimum& l : r.local_optima) {
+    EXPECT_GE(l.params[3], 0.01 * (1 - 1e-12));
+    EXPECT_LE(l.params[3], 0.1 * (1 + 1e-12));
+  }
+  // Bounds that contain the truth: recovered.
+  o.bounds = "ggx.alpha=0.2:0.5";
+  const Result inside = Fit(m, d, o);
+  ExpectRecovered(inside, truth, 1e-6);
+}
+
+TEST(Fit, ConstraintErrorsNameTheParameter) {
+  const ModelInfo info = Model::Parse("lambert+ggx+ggx").Info();
+  const auto message = [&](const std::string& fix, const std::string& tie, const std::string& bounds) {
+    Options o;
+    o.fix = fix;
+    o.tie = tie;
+    o.bounds = bounds;
+    try {
+      CheckConstraints(info, o);
+    } catch (const std::invalid_argument& e) {
+      return std::string(e.what());
+    }
+    return std::string("accepted");
+  };
+  struct Bad {
+    const char *fix, *tie, *bounds, *needle;
+  };
+  const Bad cases[] = {
+      {"ggx.f00=0.04", "", "", "fix: unknown parameter 'ggx.f00'"},
+      {"ggx.f00=0.04", "", "", "did you mean ggx.f0"},
+      {"ggx.f0=1.5", "", "", "'ggx.f0' (r) = 1.5 is outside its range [0, 1]"},
+      {"lambert.albedo=0.2:0.3", "", "", "expected one value or r:g:b"},
+      {"", "", "ggx.alpha=0.5:0.01", "bounds: 'ggx.alpha' = [0.5, 0.01] is inverted"},
+      {"", "", "ggx.alpha=0:0.5", "reaches outside its range"},
+      {"", "", "ggx.alpha=0.1", "expected lo:hi"},
+      {"", "ggx#2.alpha=lambert.albedo", "", "are parameters of different kinds"},
+      {"", "ggx#2.alpha=ggx.weight", "", "are parameters of different kinds"},
+      {"", "ggx#2.f0=ggx.f0,ggx.f0=ggx#2.f0", "", "cycle"},
+      {"", "ggx#3.f0=ggx.f0", "", "tie: unknown parameter 'ggx#3.f0'"},
+      {"ggx.f0=0.04", "ggx.f0=ggx#2.f0", "", "'ggx.f0' is both fixed and tied"},
+      {"lambert.albedo=0.1,ggx.alpha=0.1,ggx.f0=0.1,ggx.weight=1,ggx#2.alpha=0.2,ggx#2.weight=1", "ggx#2.f0=ggx.f0",
+       "", "nothing left to fit"},
+  };
+  for (const Bad& c : cases) {
+    const std::string got = message(c.fix, c.tie, c.bounds);
+    EXPECT_NE(got.find(c.needle), std::string::npos) << got;
+  }
+  EXPECT_EQ(message("ggx.f0=0.04", "ggx#2.f0=ggx.f0", "ggx.alpha=0.01:0.5"), "accepted");
+}
+
 }  // namespace
 }  // namespace brdfkit::fit

@@ -32,6 +32,9 @@ class Evaluators {
   virtual std::unique_ptr<Bxdf<Jet<8>>> MakeJet8() const = 0;
   virtual std::unique_ptr<Bxdf<Jet<16>>> MakeJet16() const = 0;
   virtual std::unique_ptr<Bxdf<Jet<32>>> MakeJet32() const = 0;
+  // The registered model behind these evaluators, if any: the start search
+  // switches its lobes off and on (a model outside the registry has none).
+  virtual const Model* AsModel() const { return nullptr; }
 };
 
 class ModelEvaluators final : public Evaluators {
@@ -43,6 +46,7 @@ class ModelEvaluators final : public Evaluators {
   std::unique_ptr<Bxdf<Jet<8>>> MakeJet8() const override;
   std::unique_ptr<Bxdf<Jet<16>>> MakeJet16() const override;
   std::unique_ptr<Bxdf<Jet<32>>> MakeJet32() const override;
+  const Model* AsModel() const override { return &model_; }
 
  private:
   const Model& model_;

@@ -159,6 +159,30 @@ TEST_F(BadInput, NonUtf8PathsAreNamedAndWork) {
   EXPECT_NEAR(j["params"]["albedo"][0].get<double>(), 0.159 * kPi, 1e-6) << j.dump();
 }
 
+// Fixed, tied and bounded parameters that do not apply: exit 2 naming the
+// option and the parameter, before any data are read; the output stays.
+TEST_F(BadInput, FitConstraintsNameTheParameter) {
+  std::string rows = kCsvHeader;
+  for (int k = 1; k < 20; ++k) rows += "0.2,0," + FormatDouble(0.07 * k) + ",3.1,0.159,0.159,0.159\n";
+  Write(P("ok.csv"), rows);
+  const auto args = [&](const std::string& option, const std::string& value) {
+    return std::vector<std::string>{"fit", "--data", P("ok.csv"), "--model", "lambert+ggx+ggx", "--no-covariance",
+                                    "--out", good_.string(), option, value};
+  };
+  const auto rejected = [&](const std::string& option, const std::string& value, const std::vector<std::string>& needles) {
+    ExpectRejected(args(option, value), needles);
+    EXPECT_EQ(Brdfkit(args(option, value)).code, 2);
+  };
+  rejected("--fix", "ggx.alhpa=0.1", {"--fix: unknown parameter 'ggx.alhpa'", "did you mean ggx.alpha"});
+  rejected("--fix", "ggx.f0=2", {"--fix", "'ggx.f0' (r) = 2 is outside its range [0, 1]"});
+  rejected("--bounds", "ggx.alpha=0.5:0.01", {"--bounds: 'ggx.alpha' = [0.5, 0.01] is inverted"});
+  rejected("--bounds", "ggx.weight=0:20", {"--bounds: 'ggx.weight' = [0, 20] reaches outside its range [0, 10]"});
+  rejected("--tie", "ggx#2.f0=ggx.alpha", {"--tie: 'ggx#2.f0'", "'ggx.alpha'", "different kinds"});
+  rejected("--tie", "ggx#2.alpha=ggx.alpha,ggx.alpha=ggx#2.alpha", {"--tie: the ties form a cycle", "ggx.alpha"});
+  rejected("--fix", "lambert.albedo=0.1,ggx.alpha=0.1,ggx.f0=0.1,ggx.weight=1,ggx#2.alpha=0.2,ggx#2.f0=0.1,ggx#2.weight=0",
+           {"lambert+ggx+ggx", "nothing left to fit"});
+}
+
 // Missing samples are not errors: counted, reported, skipped.
 TEST_F(BadInput, MissingCsvSamplesAreCountedAndSkipped) {
   std::string rows = kCsvHeader;

@@ -293,19 +293,22 @@ TEST_P(ModelProperties, ParameterTableIsConsistent) {
 INSTANTIATE_TEST_SUITE_P(AllModels, ModelProperties, ::testing::ValuesIn(ModelNames()),
                          [](const auto& param_info) { return param_info.param; });
 
-// A sum of lobes is the sum of its lobes, with <lobe>.<param> names.
+// A sum of lobes is the weighted sum of its lobes, with <lobe>.<param>
+// names; a lobe that cannot vanish by its own parameters (ggx) has a weight.
 TEST(SumOfLobes, EvaluatesToTheSumAndNamesParameters) {
   const Model sum = Model::Parse("lambert+ggx+ggx");
   std::vector<std::string> names;
   for (const ParamInfo& q : sum.Info().params) names.push_back(q.name);
-  EXPECT_EQ(names, (std::vector<std::string>{"lambert.albedo", "ggx.alpha", "ggx.f0", "ggx#2.alpha", "ggx#2.f0"}));
-  const std::vector<double> p =
-      ParseParams(sum.Info(), "lambert.albedo=0.1:0.2:0.3,ggx.alpha=0.05,ggx.f0=0.04,ggx#2.alpha=0.6");
+  EXPECT_EQ(names, (std::vector<std::string>{"lambert.albedo", "ggx.alpha", "ggx.f0", "ggx.weight", "ggx#2.alpha",
+                                             "ggx#2.f0", "ggx#2.weight"}));
+  const std::vector<double> p = ParseParams(
+      sum.Info(), "lambert.albedo=0.1:0.2:0.3,ggx.alpha=0.05,ggx.f0=0.04,ggx#2.alpha=0.6,ggx#2.weight=0.25");
+  EXPECT_EQ(p[7], 1.0);  // the default weight: the lobe as it is alone
   const Model lambert = Model::Parse("lambert"), ggx = Model::Parse("ggx");
   const Eigen::Vector3d wi = test::DirectionFromAngles(0.4, 0.1), wo = test::DirectionFromAngles(0.5, 3.0);
   const Rgb<double> expected = lambert.Make<double>()->Eval(p.data(), wi, wo) +
                                ggx.Make<double>()->Eval(p.data() + 3, wi, wo) +
-                               ggx.Make<double>()->Eval(p.data() + 7, wi, wo);
+                               0.25 * ggx.Make<double>()->Eval(p.data() + 8, wi, wo);
   const Rgb<double> got = sum.Make<double>()->Eval(p.data(), wi, wo);
   for (int c = 0; c < 3; ++c) EXPECT_DOUBLE_EQ(got[c], expected[c]);
 }

@@ -140,7 +140,7 @@ def synth(model, params=None, *, instrument=None, seed=0, out=(), threads=0):
 
 def fit(model, data, wo=None, f=None, sigma=None, *, init=None, metric="l2", loss="none", solver="dense_qr",
         max_theta_deg=-1.0, threads=2, max_iterations=200, starts=5, covariance=True, use_sigma=True,
-        instrument=None, aperture_order=0):
+        instrument=None, aperture_order=0, fix=None, tie=None, bounds=None):
     """Least-squares fit of a model to measured reflectance, as ``brdfkit fit --json``.
 
     Parameters
@@ -171,19 +171,59 @@ def fit(model, data, wo=None, f=None, sigma=None, *, init=None, metric="l2", los
     instrument : str or dict, optional
         Fit through this instrument's finite apertures.
     aperture_order : int
+    fix : dict or str, optional
+        Parameters held fixed, e.g. ``{"ggx.f0": 0.04, "lambert.albedo": (0.2, 0.3, 0.4)}``
+        (stddev 0, listed in the result's ``fixed``).
+    tie : dict or str, optional
+        Parameters that follow another, e.g. ``{"ggx#2.f0": "ggx.f0"}``: same kind and
+        size; a follower reports its leader's stddev.
+    bounds : dict or str, optional
+        Narrower ranges, e.g. ``{"ggx.alpha": (0.01, 0.5)}``, within the model's.
+        Each of fix, tie and bounds may also be the command line's text
+        (``"ggx.f0=0.04,lambert.albedo=0.2:0.3:0.4"``). A name that does not
+        exist, a value or bounds out of range, a tie between different kinds,
+        a tie cycle or nothing left to fit raise ValueError naming the parameter.
 
     Returns
     -------
     dict
         The command line's JSON (model, params, stddev, correlation, cost,
-        rmse, iterations, trace, ...) plus packed_names, packed_params,
-        packed_stddev, covariance (numpy) and model_object (the fitted Model;
-        for a PythonModel, the PythonModel itself).
+        rmse, iterations, trace, local_optima and kept, fixed, tied, ...)
+        plus packed_names, packed_params, packed_stddev, covariance (numpy)
+        and model_object (the fitted Model; for a PythonModel, the
+        PythonModel itself).
     """
     if isinstance(data, (str, _os.PathLike)):
         data = _existing(data, "data file")
     return _brdfkit._fit(model, data, wo, f, sigma, init, metric, loss, solver, max_theta_deg, threads,
-                         max_iterations, starts, covariance, use_sigma, instrument, aperture_order)
+                         max_iterations, starts, covariance, use_sigma, instrument, aperture_order,
+                         _assignments(fix, "fix", _values), _assignments(tie, "tie", str),
+                         _assignments(bounds, "bounds", _range))
+
+
+def _values(v):
+    """A value or (r, g, b) as the command line's text."""
+    if isinstance(v, (list, tuple)):
+        return ":".join(repr(float(x)) for x in v)
+    return repr(float(v))
+
+
+def _range(v):
+    """(lo, hi) as the command line's text."""
+    if not isinstance(v, (list, tuple)) or len(v) != 2:
+        raise ValueError(f"bounds: expected (lo, hi), got {v!r}")
+    return f"{float(v[0])!r}:{float(v[1])!r}"
+
+
+def _assignments(arg, what, text):
+    """None, "name=...,name=..." or a dict as "name=...,name=..."."""
+    if arg is None:
+        return ""
+    if isinstance(arg, str):
+        return arg
+    if not isinstance(arg, dict):
+        raise TypeError(f"{what} must be a dict or a 'name=...' string (got {type(arg).__name__})")
+    return ",".join(f"{k}={text(v)}" for k, v in arg.items())
 
 
 def stress(models=(), *, merl=None, sweep_only=False):

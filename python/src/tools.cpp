@@ -171,8 +171,12 @@ fit::Dataset DatasetArgument(const py::object& data, const py::object& wo_obj, c
 py::dict Fit(const py::object& model, const py::object& data, const py::object& wo, const py::object& f,
              const py::object& sigma, const py::object& init, const std::string& metric, const std::string& loss,
              const std::string& solver, double max_theta_deg, int threads, int max_iterations, int starts,
-             bool covariance, bool use_sigma, const py::object& instrument, int aperture_order) {
+             bool covariance, bool use_sigma, const py::object& instrument, int aperture_order,
+             const std::string& fix, const std::string& tie, const std::string& bounds) {
   fit::Options o;
+  o.fix = fix;
+  o.tie = tie;
+  o.bounds = bounds;
   try {
     o.metric = fit::ParseMetric(metric);
     o.solver = fit::ParseLinearSolver(solver);
@@ -215,6 +219,7 @@ py::dict Fit(const py::object& model, const py::object& data, const py::object& 
   }
   if (!init.is_none())
     o.initial = python ? ParseParams(python->info, ParamsText(init)) : MakeModel(mm.Spec(), init).params;
+  fit::CheckConstraints(python ? python->info : mm.Info(), o);  // std::invalid_argument: ValueError naming the parameter
   synth::Instrument inst;
   if (!instrument.is_none()) {
     inst = InstrumentArgument(instrument);
@@ -376,7 +381,8 @@ void BindTools(py::module_& m) {
   m.def("_fit", &Fit, py::arg("model"), py::arg("data"), py::arg("wo"), py::arg("f"), py::arg("sigma"),
         py::arg("init"), py::arg("metric"), py::arg("loss"), py::arg("solver"), py::arg("max_theta_deg"),
         py::arg("threads"), py::arg("max_iterations"), py::arg("starts"), py::arg("covariance"),
-        py::arg("use_sigma"), py::arg("instrument"), py::arg("aperture_order"));
+        py::arg("use_sigma"), py::arg("instrument"), py::arg("aperture_order"), py::arg("fix"), py::arg("tie"),
+        py::arg("bounds"));
   m.def("_stress", &Stress, py::arg("models"), py::arg("merl"), py::arg("sweep_only"));
   m.def("_read_merl", &ReadMerl, py::arg("path"));
   m.def("_write_merl", &WriteMerl, py::arg("path"), py::arg("data"));

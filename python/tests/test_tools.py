@@ -90,6 +90,40 @@ def test_fit_with_sigma_and_errors(tmp):
         brdfkit.fit("lambert", tmp / "nosuch.csv")
 
 
+def test_fit_fix_tie_bounds_as_the_cli(tmp):
+    truth = brdfkit.Model("lambert+ggx+ggx", {"lambert.albedo": 0.3, "ggx.alpha": 0.05, "ggx.f0": (0.9, 0.7, 0.5),
+                                              "ggx#2.alpha": 0.35, "ggx#2.f0": (0.9, 0.7, 0.5), "ggx#2.weight": 0.4})
+    wi, wo = unit_rows(2000, seed=21, min_z=0.1), unit_rows(2000, seed=22, min_z=0.1)
+    f = truth.eval(wi, wo)
+    brdfkit.write(tmp / "data.csv", {"wi": wi, "wo": wo, "f": f})
+    kw = dict(fix={"ggx.weight": 1, "lambert.albedo": (0.3, 0.3, 0.3)}, tie={"ggx#2.f0": "ggx.f0"},
+              bounds={"ggx#2.alpha": (0.2, 0.5)}, threads=1)
+    py = brdfkit.fit("lambert+ggx+ggx", tmp / "data.csv", **kw)
+    ref = cli_json("fit", "--data", tmp / "data.csv", "--model", "lambert+ggx+ggx", "--threads", 1, "--json",
+                   "--fix", "ggx.weight=1,lambert.albedo=0.3:0.3:0.3", "--tie", "ggx#2.f0=ggx.f0",
+                   "--bounds", "ggx#2.alpha=0.2:0.5")
+    assert py["params"] == ref["params"]
+    assert py["fixed"] == ["lambert.albedo", "ggx.weight"] and py["tied"] == {"ggx#2.f0": "ggx.f0"}
+    assert py["stddev"]["ggx.weight"] == 0 and py["stddev"]["lambert.albedo"] == [0, 0, 0]
+    assert py["stddev"]["ggx#2.f0"] == py["stddev"]["ggx.f0"]
+    np.testing.assert_allclose(py["params"]["ggx.f0"], [0.9, 0.7, 0.5], rtol=1e-6)
+    np.testing.assert_allclose(py["params"]["ggx#2.alpha"], 0.35, rtol=1e-6)
+    assert py["local_optima"] and 0 <= py["kept"] < len(py["local_optima"])
+    assert py["local_optima"][py["kept"]]["cost"] == min(o["cost"] for o in py["local_optima"])
+    # Text as on the command line works the same.
+    text = brdfkit.fit("lambert+ggx+ggx", tmp / "data.csv", fix="ggx.weight=1,lambert.albedo=0.3:0.3:0.3",
+                       tie="ggx#2.f0=ggx.f0", bounds="ggx#2.alpha=0.2:0.5", threads=1)
+    assert text["params"] == py["params"]
+    with pytest.raises(ValueError, match="fix: unknown parameter 'ggx.f00'.*did you mean ggx.f0"):
+        brdfkit.fit("lambert+ggx", wi, wo, f, fix={"ggx.f00": 0.04})
+    with pytest.raises(ValueError, match="different kinds"):
+        brdfkit.fit("lambert+ggx", wi, wo, f, tie={"ggx.alpha": "lambert.albedo"})
+    with pytest.raises(ValueError, match=r"bounds: 'ggx.alpha' = \[0.5, 0.1\] is inverted"):
+        brdfkit.fit("lambert+ggx", wi, wo, f, bounds={"ggx.alpha": (0.5, 0.1)})
+    with pytest.raises(ValueError, match="nothing left to fit"):
+        brdfkit.fit("lambert", wi, wo, f, fix={"albedo": 0.2})
+
+
 def test_files_round_trip_and_bad_files(tmp):
     wi, wo = unit_rows(50, seed=3), unit_rows(50, seed=4)
     f = brdfkit.Model("ggx").eval(wi, wo)
