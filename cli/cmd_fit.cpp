@@ -147,7 +147,7 @@ void WriteTracePlot(const std::string& path, const fit::Result& r) {
       const bool sum = r.model.LobeCount() > 1;
       std::string label = t.start == 0 ? "final, all samples"
                           : !first_start ? ""
-                          : sum ? std::to_string(r.starts) + " solves: starts (subset) and sub-sums (all samples)"
+                          : sum ? std::to_string(r.starts) + " starts and sub-sums"
                                 : std::to_string(r.starts) + " starts, subset";
       series.push_back({label, {}, {}});
       series.back().colour = t.start == 0 ? 0 : validate::kGrey;

@@ -128,8 +128,12 @@ TEST_P(ModelProperties, EvalSumIsTheWeightedSumOfEval) {
   }
   const Settings settings = SettingsFor(info_);
   const Model sum = Model::Parse("lambert+" + GetParam() + (settings.empty() ? "" : ":" + settings.begin()->second));
-  std::vector<double> ps = {0.2, 0.3, 0.4};
-  ps.insert(ps.end(), p.begin(), p.end());
+  // The sum's own table: a lobe that cannot vanish carries a weight too.
+  std::vector<double> ps = sum.Info().Defaults();
+  ASSERT_EQ(ps.size(), 3 + p.size() + (sum.LobeWeightIndex(1) >= 0 ? 1 : 0)) << sum.Spec();
+  ps[0] = 0.2, ps[1] = 0.3, ps[2] = 0.4;
+  std::copy(p.begin(), p.end(), ps.begin() + static_cast<std::ptrdiff_t>(sum.LobeOffset(1)));
+  if (sum.LobeWeightIndex(1) >= 0) ps[static_cast<std::size_t>(sum.LobeWeightIndex(1))] = 0.7;
   for (const auto& [m, params] : {std::pair<const Model*, const std::vector<double>*>{model_.get(), &p}, {&sum, &ps}}) {
     const auto b = m->Make<double>();
     for (int k = 0; k < 8; ++k) {

@@ -67,8 +67,9 @@ void Legend(const std::vector<Series>& series, const std::vector<PLINT>& slots, 
 // `preferred`) that leaves room outside it for the legend Legend() draws:
 // offset and line sample 0.075 of the plot width, then the longest label at
 // text scale 0.6. Browsers draw the SVG's text in their sans-serif font, whose
-// characters average about 0.55 em; 0.75 of the character height per
-// character is a margin over that (PLplot's public API has no string metrics).
+// characters average about 0.55 em; 0.8 of the character height per
+// character is a margin over that (wide labels measure 0.76 in Chromium;
+// PLplot's public API has no string metrics).
 PLFLT RightEdgeForLegend(const std::vector<Series>& series, PLFLT left, PLFLT preferred) {
   std::size_t longest = 0;
   for (const Series& s : series) longest = std::max(longest, s.label.size());
@@ -77,7 +78,7 @@ PLFLT RightEdgeForLegend(const std::vector<Series>& series, PLFLT left, PLFLT pr
   plgspa(&x0, &x1, &y0, &y1);  // the page in millimetres
   PLFLT default_mm, char_mm;
   plgchr(&default_mm, &char_mm);
-  const PLFLT text = 0.6 * char_mm * (0.75 * PLFLT(longest) + 3.0) / (x1 - x0);
+  const PLFLT text = 0.6 * char_mm * (0.8 * PLFLT(longest) + 3.0) / (x1 - x0);
   const PLFLT right = (0.985 - text + 0.075 * left) / 1.075;
   // A label longer than half the page is cut rather than the plot squeezed away.
   return std::clamp(right, left + 0.45, preferred);
