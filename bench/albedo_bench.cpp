@@ -44,6 +44,52 @@ void BM_AlbedoTableGgx32x32(benchmark::State& state) {
 }
 BENCHMARK(BM_AlbedoTableGgx32x32)->Arg(6)->Arg(8)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(2);
 
+// The same table with the quadrature's batches evaluated pair by pair (the
+// Bxdf default EvalBatch: one virtual Eval per node), the baseline of the
+// batched rule above in the same run.
+class PerCallView final : public Bxdf<double> {
+ public:
+  explicit PerCallView(const Bxdf<double>& b) : b_(b) {}
+  const ModelInfo& Info() const override { return b_.Info(); }
+  Rgb<double> Eval(const double* p, const Vec3<double>& wi, const Vec3<double>& wo) const override {
+    return b_.Eval(p, wi, wo);
+  }
+  BsdfSample<double> Sample(const double* p, const Vec3<double>& wo, double u1, double u2) const override {
+    return b_.Sample(p, wo, u1, u2);
+  }
+  double Pdf(const double* p, const Vec3<double>& wo, const Vec3<double>& wi) const override { return b_.Pdf(p, wo, wi); }
+  double SampleWeight(const double* p) const override { return b_.SampleWeight(p); }
+  bool CanSample() const override { return b_.CanSample(); }
+  unsigned Kind() const override { return b_.Kind(); }
+  LobeWidth Width(const double* p) const override { return b_.Width(p); }
+  bool ChannelsIndependent() const override { return b_.ChannelsIndependent(); }
+  const MicrofacetView<double>* Microfacet() const override { return b_.Microfacet(); }
+
+ private:
+  const Bxdf<double>& b_;
+};
+
+void BM_AlbedoTableGgx32x32Batch(benchmark::State& state) {
+  const Model& m = Ggx();
+  const auto own = m.Make<double>();
+  const PerCallView per_call(*own);
+  const Bxdf<double>& b = state.range(0) ? static_cast<const Bxdf<double>&>(*own) : per_call;
+  validate::AlbedoTableRequest req;
+  req.axes = validate::ParseAxes("mu:32,alpha:32:0.001:1");
+  const std::vector<double> p = ParseParams(m.Info(), "f0=1");
+  double e00 = 0;
+  const std::clock_t c0 = std::clock();
+  for (auto _ : state) {
+    const validate::AlbedoTable t = validate::BuildAlbedoTable(b, "ggx", p, req);
+    e00 = t.E[0];
+    benchmark::DoNotOptimize(t.E.data());
+  }
+  state.counters["cpu_s_all_threads"] = double(std::clock() - c0) / CLOCKS_PER_SEC / double(state.iterations());
+  state.counters["E_first"] = e00;
+  state.SetLabel(state.range(0) ? "EvalBatch per rule" : "Eval per node");
+}
+BENCHMARK(BM_AlbedoTableGgx32x32Batch)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(2);
+
 // Importance-sampled Monte Carlo at a target standard error: measure the
 // per-sample variance and speed on a few cells, then scale to 1024 cells.
 void BM_MonteCarloEquivalent(benchmark::State& state) {

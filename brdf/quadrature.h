@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstddef>
 #include <cstdint>
 #include <limits>
 #include <stdexcept>
@@ -140,27 +141,30 @@ struct QuadSegment {
   bool operator<(const QuadSegment& o) const { return key < o.key; }
 };
 
-// The Gauss-Kronrod (7, 15) estimate on [a, b] of f(x) -> QuadValue.
+// An integrand evaluated a batch at a time: f(x, n, out) writes f(x[k]) to
+// out[k] for k < n. Integrands that only take one point, f(x) -> QuadValue,
+// are called point by point.
 template <typename F>
-QuadSegment Kronrod15(F& f, double a, double b) {
-  const double c = 0.5 * (a + b), h = 0.5 * (b - a);
+concept QuadBatchIntegrand = requires(F& f, const double* x, std::size_t n, QuadValue* out) { f(x, n, out); };
+
+// The Gauss-Kronrod (7, 15) estimate on [a, b] from the integrand's values
+// at the rule's 15 nodes a + (b - a) (1 + x_i) / 2.
+inline QuadSegment Kronrod15(double a, double b, const QuadValue* v) {
+  const double h = 0.5 * (b - a);
   QuadSegment s;
   s.a = a;
   s.b = b;
   Eigen::Array3d k = Eigen::Array3d::Zero(), g = Eigen::Array3d::Zero(), carried = Eigen::Array3d::Zero(),
                  abs_sum = Eigen::Array3d::Zero();
-  std::array<Eigen::Array3d, 15> fv;
   for (int i = 0; i < 15; ++i) {
-    const QuadValue v = f(c + h * kGk15.x[i]);
-    fv[i] = v.value;
-    k += kGk15.wk[i] * v.value;
-    g += kGk15.wg[i] * v.value;
-    abs_sum += kGk15.wk[i] * v.value.abs();
-    carried += kGk15.wk[i] * v.error;
+    k += kGk15.wk[i] * v[i].value;
+    g += kGk15.wg[i] * v[i].value;
+    abs_sum += kGk15.wk[i] * v[i].value.abs();
+    carried += kGk15.wk[i] * v[i].error;
   }
   const Eigen::Array3d mean = 0.5 * k;
   Eigen::Array3d resasc = Eigen::Array3d::Zero();
-  for (int i = 0; i < 15; ++i) resasc += kGk15.wk[i] * (fv[i] - mean).abs();
+  for (int i = 0; i < 15; ++i) resasc += kGk15.wk[i] * (v[i].value - mean).abs();
   const double ah = std::abs(h);
   s.value = k * h;
   s.error = QuadpackError(((k - g) * ah).abs(), resasc * ah, abs_sum * ah) + carried * ah;
@@ -168,12 +172,33 @@ QuadSegment Kronrod15(F& f, double a, double b) {
   return s;
 }
 
-// Globally adaptive quadrature of f(x) -> QuadValue over [a, b] split at
-// `breaks` (any order; those outside (a, b) are ignored): bisects the
-// segment with the largest error until every channel's total error is
-// below max(abs_tol, rel_tol |value|), `max_splits` bisections are done, or
-// stop() says the caller's evaluation budget is spent. Segments too short
-// to split in double precision are final. Returns the sum and its error.
+// Kronrod estimates on the segments [ends[2 j], ends[2 j + 1]], appended to
+// `out`: one call of a batch integrand for all their nodes.
+template <typename F>
+void Kronrod15(F& f, const std::vector<double>& ends, std::vector<QuadSegment>& out) {
+  const std::size_t count = ends.size() / 2;
+  std::vector<double> x(15 * count);
+  std::vector<QuadValue> v(15 * count);
+  for (std::size_t j = 0; j < count; ++j) {
+    const double c = 0.5 * (ends[2 * j] + ends[2 * j + 1]), h = 0.5 * (ends[2 * j + 1] - ends[2 * j]);
+    for (int i = 0; i < 15; ++i) x[15 * j + i] = c + h * kGk15.x[i];
+  }
+  if constexpr (QuadBatchIntegrand<F>) {
+    f(x.data(), x.size(), v.data());
+  } else {
+    for (std::size_t i = 0; i < x.size(); ++i) v[i] = f(x[i]);
+  }
+  for (std::size_t j = 0; j < count; ++j) out.push_back(Kronrod15(ends[2 * j], ends[2 * j + 1], v.data() + 15 * j));
+}
+
+// Globally adaptive quadrature of f over [a, b] split at `breaks` (any
+// order; those outside (a, b) are ignored): bisects the segment with the
+// largest error until every channel's total error is below max(abs_tol,
+// rel_tol |value|), `max_splits` bisections are done, or stop() says the
+// caller's evaluation budget is spent. Segments too short to split in
+// double precision are final. Returns the sum and its error. f is a
+// QuadBatchIntegrand or f(x) -> QuadValue; a batch integrand gets the first
+// pass's nodes in one call and each bisection's 30 in one call.
 template <typename F, typename Stop>
 QuadValue AdaptiveKronrod(F& f, double a, double b, std::vector<double> breaks, double abs_tol, double rel_tol,
                           int max_splits, Stop&& stop) {
@@ -182,9 +207,11 @@ QuadValue AdaptiveKronrod(F& f, double a, double b, std::vector<double> breaks, 
   for (double x : breaks)
     if (x > pts.back() && x < b) pts.push_back(x);
   pts.push_back(b);
-  std::vector<QuadSegment> heap;
+  std::vector<double> ends;
   for (std::size_t i = 0; i + 1 < pts.size(); ++i)
-    if (pts[i + 1] > pts[i]) heap.push_back(Kronrod15(f, pts[i], pts[i + 1]));
+    if (pts[i + 1] > pts[i]) ends.insert(ends.end(), {pts[i], pts[i + 1]});
+  std::vector<QuadSegment> heap;
+  Kronrod15(f, ends, heap);
   std::make_heap(heap.begin(), heap.end());
   QuadValue total;
   const auto sum = [&] {
@@ -207,9 +234,8 @@ QuadValue AdaptiveKronrod(F& f, double a, double b, std::vector<double> breaks, 
       continue;
     }
     heap.pop_back();
-    heap.push_back(Kronrod15(f, worst.a, mid));
-    std::push_heap(heap.begin(), heap.end());
-    heap.push_back(Kronrod15(f, mid, worst.b));
+    Kronrod15(f, {worst.a, mid, mid, worst.b}, heap);
+    std::push_heap(heap.begin(), heap.end() - 1);
     std::push_heap(heap.begin(), heap.end());
     sum();
   }

@@ -291,11 +291,31 @@ CameraCapture RenderCamera(const CameraRig& rig, const Model& model, const std::
   CameraCapture cap;
   cap.raw.assign(rig.exposures.size(), std::vector<float>(3 * npix, 0.f));
   tbb::parallel_for(tbb::blocked_range<int>(0, rig.height), [&](const auto& rows) {
+    std::vector<PixelGeometry> row(static_cast<std::size_t>(rig.width));
+    std::vector<double> wi, wo, f;
+    std::vector<int> hit;
     for (int y = rows.begin(); y < rows.end(); ++y) {
+      // The row's lit pixels in one EvalBatch call.
+      wi.clear();
+      wo.clear();
+      hit.clear();
       for (int x = 0; x < rig.width; ++x) {
-        const PixelGeometry g = CameraPixel(rig, x, y);
+        const PixelGeometry& g = row[std::size_t(x)] = CameraPixel(rig, x, y);
+        if (!g.hit) continue;
+        wi.insert(wi.end(), {g.wi.x(), g.wi.y(), g.wi.z()});
+        wo.insert(wo.end(), {g.wo.x(), g.wo.y(), g.wo.z()});
+        hit.push_back(x);
+      }
+      f.assign(3 * hit.size(), 0.0);
+      if (!hit.empty()) bxdf->EvalBatch(params.data(), wi.data(), 3, wo.data(), 3, hit.size(), f.data());
+      std::size_t next = 0;
+      for (int x = 0; x < rig.width; ++x) {
+        const PixelGeometry& g = row[std::size_t(x)];
         Rgb<double> radiance = Rgb<double>::Zero();
-        if (g.hit) radiance = bxdf->Eval(params.data(), g.wi, g.wo) * g.e_perp * g.wi.z();
+        if (next < hit.size() && hit[next] == x) {
+          radiance = Rgb<double>(f[3 * next], f[3 * next + 1], f[3 * next + 2]) * g.e_perp * g.wi.z();
+          ++next;
+        }
         const std::size_t p = std::size_t(y) * rig.width + x;
         SampleRng rng(seed, p);
         for (int c = 0; c < 3; ++c) {

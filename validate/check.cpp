@@ -104,9 +104,17 @@ CheckResult CheckPlausibility(const Bxdf<double>& bxdf, const double* p, const C
       pairs.emplace_back(below(wi), below(wo));
     }
   }
-  for (const auto& [wi, wo] : pairs) {
+  // Both orders of every pair in two EvalBatch calls.
+  std::vector<double> first(3 * pairs.size()), second(3 * pairs.size()), forward(3 * pairs.size()),
+      backward(3 * pairs.size());
+  for (std::size_t k = 0; k < pairs.size(); ++k)
+    for (int c = 0; c < 3; ++c) first[3 * k + c] = pairs[k].first[c], second[3 * k + c] = pairs[k].second[c];
+  bxdf.EvalBatch(p, first.data(), 3, second.data(), 3, pairs.size(), forward.data());
+  bxdf.EvalBatch(p, second.data(), 3, first.data(), 3, pairs.size(), backward.data());
+  for (std::size_t k = 0; k < pairs.size(); ++k) {
+    const auto& [wi, wo] = pairs[k];
     const double eta_r = sphere ? bxdf.RelativeIndex(p, wi, wo) : 1.0;
-    const Array3d a = bxdf.Eval(p, wi, wo) * (eta_r * eta_r), b = bxdf.Eval(p, wo, wi);
+    const Array3d a = Array3d::Map(forward.data() + 3 * k) * (eta_r * eta_r), b = Array3d::Map(backward.data() + 3 * k);
     ++r.pairs_checked;
     bool finite = true;
     for (int c = 0; c < 3; ++c)

@@ -27,8 +27,18 @@ struct DirSample {
 
 // One integration problem: the integrand over directions, an optional
 // importance sampler, and what is known about a sharp peak.
+// g at n directions: out[k] = g(w[k]).
+using BatchIntegrand = std::function<void(const Vector3d* w, std::size_t n, Array3d* out)>;
+
+BatchIntegrand PointByPoint(const std::function<Array3d(const Vector3d&)>& g) {
+  return [&g](const Vector3d* w, std::size_t n, Array3d* out) {
+    for (std::size_t k = 0; k < n; ++k) out[k] = g(w[k]);
+  };
+}
+
 struct Problem {
   std::function<Array3d(const Vector3d&)> g;
+  BatchIntegrand g_batch;  // g on many directions at once (optional)
   std::function<DirSample(double, double)> sample;  // empty: cosine or lobe mixture
   Vector3d peak = Vector3d::Zero();                  // zero: no peak known
   double width = 0;                                  // angular width of the peak (radians)
@@ -576,22 +586,39 @@ AdaptiveResult AdaptiveHalfVector(const Bxdf<double>& bxdf, const double* p, con
     const double per_inner = inner_calls > 0 ? double(evals) / double(inner_calls) : 15.0;
     return double(evals) + 30 * per_inner > double(o.budget);
   };
+  std::vector<double> rows, values, jacobian;
+  std::vector<std::size_t> at;
   const auto inner = [&](double phi) -> QuadValue {
     ++inner_calls;
     const double tmax = theta_max(phi);
     const double cp = std::cos(phi);
     const double ca = std::cos(phi + phi_o), sa = std::sin(phi + phi_o);
-    const auto g = [&](double t) -> QuadValue {
-      ++evals;
-      const double st = std::sin(t), ct = std::cos(t);
-      const Vector3d wm(st * ca, st * sa, ct);
-      const double o_dot_m = sin_o * st * cp + mu_o * ct;
-      // wi.z from the double-angle form: no cancellation at grazing.
-      const double wi_z = mu_o * std::cos(2 * t) + sin_o * cp * std::sin(2 * t);
-      if (!(wi_z > 0) || !(o_dot_m > 0)) return {};
-      Vector3d wi = 2 * o_dot_m * wm - wo;
-      wi.z() = wi_z;
-      return QuadValue{bxdf.Eval(p, wi, wo) * (wi_z * 4 * o_dot_m * st), Array3d::Zero()};
+    // The rule's nodes in one EvalBatch call (a model's vectorised kernel,
+    // one Python call for a model defined in Python).
+    const auto g = [&](const double* ts, std::size_t n, QuadValue* nodes) {
+      evals += static_cast<std::int64_t>(n);
+      rows.clear();
+      at.clear();
+      jacobian.clear();
+      for (std::size_t k = 0; k < n; ++k) {
+        nodes[k] = QuadValue{};
+        const double t = ts[k], st = std::sin(t), ct = std::cos(t);
+        const Vector3d wm(st * ca, st * sa, ct);
+        const double o_dot_m = sin_o * st * cp + mu_o * ct;
+        // wi.z from the double-angle form: no cancellation at grazing.
+        const double wi_z = mu_o * std::cos(2 * t) + sin_o * cp * std::sin(2 * t);
+        if (!(wi_z > 0) || !(o_dot_m > 0)) continue;
+        Vector3d wi = 2 * o_dot_m * wm - wo;
+        wi.z() = wi_z;
+        rows.insert(rows.end(), {wi.x(), wi.y(), wi.z()});
+        at.push_back(k);
+        jacobian.push_back(wi_z * 4 * o_dot_m * st);
+      }
+      if (at.empty()) return;
+      values.resize(3 * at.size());
+      bxdf.EvalBatch(p, rows.data(), 3, wo.data(), 0, at.size(), values.data());
+      for (std::size_t j = 0; j < at.size(); ++j)
+        nodes[at[j]].value = Array3d(values[3 * j], values[3 * j + 1], values[3 * j + 2]) * jacobian[j];
     };
     std::vector<double> inner_breaks;
     GeometricBreaks(w, tmax, inner_breaks);
@@ -648,8 +675,7 @@ AdaptiveResult AdaptivePeak(const std::function<Array3d(const Vector3d&)>& g, co
 // No lobe: directions by (phi, cos theta), phi measured from `phi0`, with
 // break points at phi0 + {-pi/2, 0, pi/2} and cos theta = `mu_break` (where
 // diffuse models such as Oren-Nayar have kinks).
-AdaptiveResult AdaptiveSpherical(const std::function<Array3d(const Vector3d&)>& g, double phi0, double mu_break,
-                                 const IntegrateOptions& o) {
+AdaptiveResult AdaptiveSpherical(const BatchIntegrand& g, double phi0, double mu_break, const IntegrateOptions& o) {
   Counter counter{0, o.budget};
   const EndMap mu_map(0.0, 1.0);
   std::vector<double> mu_breaks;
@@ -658,15 +684,30 @@ AdaptiveResult AdaptiveSpherical(const std::function<Array3d(const Vector3d&)>& 
   auto outer = [&](double sp) -> PointValue {
     const double phi = phi0 + kPi * sp;
     const double c = std::cos(phi), s = std::sin(phi);
-    auto inner = [&](double su) -> PointValue {
-      const double u = mu_map(su);
-      const double ju = mu_map.Derivative(su);
-      ++counter.evals;
-      PointValue pv;
-      if (!(u > 0) || !(ju > 0)) return pv;
-      const double r = std::sqrt(std::max(0.0, 1.0 - u * u));
-      pv.value = g(Vector3d(r * c, r * s, u)) * (ju * kPi);
-      return pv;
+    // The rule's nodes in one call of g.
+    std::vector<Vector3d> dirs;
+    std::vector<double> jacobian;
+    std::vector<std::size_t> at;
+    std::vector<Array3d> values;
+    auto inner = [&](const double* su, std::size_t n, PointValue* out) {
+      counter.evals += static_cast<std::int64_t>(n);
+      dirs.clear();
+      jacobian.clear();
+      at.clear();
+      for (std::size_t k = 0; k < n; ++k) {
+        out[k] = PointValue{};
+        const double u = mu_map(su[k]);
+        const double ju = mu_map.Derivative(su[k]);
+        if (!(u > 0) || !(ju > 0)) continue;
+        const double r = std::sqrt(std::max(0.0, 1.0 - u * u));
+        dirs.emplace_back(r * c, r * s, u);
+        jacobian.push_back(ju * kPi);
+        at.push_back(k);
+      }
+      if (at.empty()) return;
+      values.resize(at.size());
+      g(dirs.data(), at.size(), values.data());
+      for (std::size_t j = 0; j < at.size(); ++j) out[at[j]].value = values[j] * jacobian[j];
     };
     return Adapt(inner, mu_breaks, inner_abs, inner_rel, counter);
   };
@@ -691,11 +732,12 @@ Estimate Run(const Problem& pb, Method method, const IntegrateOptions& o) {
       if (pb.bxdf && pb.lobe) {
         r = AdaptiveHalfVector(*pb.bxdf, pb.params, pb.wo, pb.shape, o);
       } else if (pb.bxdf) {
-        r = AdaptiveSpherical(pb.g, std::atan2(pb.wo.y(), pb.wo.x()), pb.wo.z(), o);
+        r = AdaptiveSpherical(pb.g_batch ? pb.g_batch : PointByPoint(pb.g), std::atan2(pb.wo.y(), pb.wo.x()),
+                              pb.wo.z(), o);
       } else if (!pb.peak.isZero() && pb.width > 0) {
         r = AdaptivePeak(pb.g, pb.peak, pb.width, pb.width_y, pb.cut, o);
       } else {
-        r = AdaptiveSpherical(pb.g, 0.0, 0.0, o);
+        r = AdaptiveSpherical(pb.g_batch ? pb.g_batch : PointByPoint(pb.g), 0.0, 0.0, o);
       }
       Estimate e;
       e.value = r.value;
@@ -770,6 +812,14 @@ Estimate DirectionalAlbedo(const Bxdf<double>& bxdf, const double* params, const
     if (!(wi.z() > 0)) return Array3d::Zero();
     return bxdf.Eval(params, wi, wo) * wi.z();
   };
+  // The same in one EvalBatch call per set of directions.
+  pb.g_batch = [&bxdf, params, wo](const Vector3d* wi, std::size_t n, Array3d* out) {
+    static_assert(sizeof(Vector3d) == 3 * sizeof(double), "directions are packed rows of 3");
+    std::vector<double> f(3 * n);
+    bxdf.EvalBatch(params, wi[0].data(), 3, wo.data(), 0, n, f.data());
+    for (std::size_t k = 0; k < n; ++k)
+      out[k] = wi[k].z() > 0 ? Array3d(Array3d::Map(f.data() + 3 * k) * wi[k].z()) : Array3d::Zero();
+  };
   // A model without its own sampling is importance-sampled by the default
   // sampler (cosine, or a lobe mixture about the mirror direction).
   if (bxdf.CanSample()) pb.sample = [&bxdf, params, wo](double u1, double u2) {
@@ -825,6 +875,17 @@ class LightSideView final : public Bxdf<double> {
   const ModelInfo& Info() const override { return inner_.Info(); }
   Array3d Eval(const double* p, const Vector3d& wi, const Vector3d& wo) const override {
     return inner_.Eval(p, Side(wo), Side(wi));
+  }
+  void EvalBatch(const double* p, const double* wi, std::size_t wi_stride, const double* wo, std::size_t wo_stride,
+                 std::size_t n, double* out) const override {
+    if (!below_) return inner_.EvalBatch(p, wo, wo_stride, wi, wi_stride, n, out);
+    std::vector<double> a(3 * n), b(3 * n);
+    for (std::size_t k = 0; k < n; ++k) {
+      const double *u = wi + k * wi_stride, *v = wo + k * wo_stride;
+      a[3 * k] = v[0], a[3 * k + 1] = v[1], a[3 * k + 2] = -v[2];
+      b[3 * k] = u[0], b[3 * k + 1] = u[1], b[3 * k + 2] = -u[2];
+    }
+    inner_.EvalBatch(p, a.data(), 3, b.data(), 3, n, out);
   }
   BsdfSample<double> Sample(const double*, const Vector3d&, double, double) const override { return {}; }
   double Pdf(const double*, const Vector3d&, const Vector3d&) const override { return 0; }
