@@ -18,7 +18,12 @@
 #include <random>
 #include <sstream>
 #include <stdexcept>
-#include <thread>
+
+#include <tbb/blocked_range.h>
+#include <tbb/info.h>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
+#include <tbb/task_arena.h>
 
 #include "brdf/astm.h"
 #include "brdf/merl.h"
@@ -545,7 +550,10 @@ class Engine {
   // the plain metric.
   template <class T>
   void SampleResiduals(const Bxdf<T>& b, const T* p, const Prepared& d, std::size_t q, bool fit, T* out) const {
-    const Rgb<T> f = Prediction(b, p, d, q);
+    ResidualsOf(Prediction(b, p, d, q), d, q, fit, out);
+  }
+  template <class T>
+  void ResidualsOf(const Rgb<T>& f, const Prepared& d, std::size_t q, bool fit, T* out) const {
     for (int c = 0; c < 3; ++c) {
       const T g = MetricTransform(metric_, f[c], d.cos_i[q]);
       if (fit) out[c] = Robust(loss_, loss_scale_, T(T(d.w_fit[q][c]) * (g - T(d.target[q][c]))));
@@ -569,7 +577,16 @@ class Engine {
                   double* r) const {
     std::vector<double> p(n_);
     ToUser(u, p.data());
-    for (std::size_t q = begin; q < end; ++q) SampleResiduals(*b_, p.data(), d, q, fit, r + 3 * (q - begin));
+    if (quad_) {
+      for (std::size_t q = begin; q < end; ++q) SampleResiduals(*b_, p.data(), d, q, fit, r + 3 * (q - begin));
+    } else if (end > begin) {
+      // f_r of the whole range in one EvalBatch call (the model's vectorised kernel).
+      static_assert(sizeof(Eigen::Vector3d) == 3 * sizeof(double), "directions are packed rows of 3");
+      std::vector<double> f(3 * (end - begin));
+      b_->EvalBatch(p.data(), d.wi[begin].data(), 3, d.wo[begin].data(), 3, end - begin, f.data());
+      for (std::size_t q = begin; q < end; ++q)
+        ResidualsOf(Rgb<double>(Rgb<double>::Map(f.data() + 3 * (q - begin))), d, q, fit, r + 3 * (q - begin));
+    }
     for (std::size_t k = 0; k < 3 * (end - begin); ++k)
       if (!std::isfinite(r[k])) return false;
     return true;
@@ -724,26 +741,31 @@ ceres::Solver::Options SolverOptions(const Options& o, LinearSolver solver, int 
   return so;
 }
 
+// The sum of part(begin, end) over [0, n) cut into chunks of at most
+// `grain`, on the TBB pool (the caller's arena sets the thread count); the
+// chunks and the order of their sums do not depend on the thread count.
+template <typename T, typename F>
+T ChunkedSum(std::size_t n, std::size_t grain, T zero, F&& part) {
+  return tbb::parallel_deterministic_reduce(
+      tbb::blocked_range<std::size_t>(0, n, std::max<std::size_t>(1, grain)), zero,
+      [&](const tbb::blocked_range<std::size_t>& r, T acc) { return T(acc + part(r.begin(), r.end())); },
+      [](const T& a, const T& b) { return T(a + b); });
+}
+
 // Root mean square of the plain metric residuals.
-double Rmse(const Engine& e, const Prepared& d, const std::vector<double>& u, int threads) {
+double Rmse(const Engine& e, const Prepared& d, const std::vector<double>& u) {
   if (d.size() == 0) return 0;
-  const std::size_t workers = static_cast<std::size_t>(std::max(1, threads));
-  std::vector<double> sums(workers, 0.0);
-  std::vector<std::thread> pool;
-  for (std::size_t w = 0; w < workers; ++w)
-    pool.emplace_back([&, w] {
-      const std::size_t begin = d.size() * w / workers, end = d.size() * (w + 1) / workers;
-      double r[3];
-      double s = 0;
-      for (std::size_t q = begin; q < end; ++q) {
-        // Plain double evaluation of the metric residual.
-        e.EvalDouble(u.data(), d, q, q + 1, false, r);
-        s += r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
-      }
-      sums[w] = s;
-    });
-  for (auto& t : pool) t.join();
-  return std::sqrt(std::accumulate(sums.begin(), sums.end(), 0.0) / (3.0 * d.size()));
+  const double sum = ChunkedSum(d.size(), 1024, 0.0, [&](std::size_t begin, std::size_t end) {
+    double r[3];
+    double s = 0;
+    for (std::size_t q = begin; q < end; ++q) {
+      // Plain double evaluation of the metric residual.
+      e.EvalDouble(u.data(), d, q, q + 1, false, r);
+      s += r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
+    }
+    return s;
+  });
+  return std::sqrt(sum / (3.0 * d.size()));
 }
 
 // Quantile q of sorted values, linear between order statistics (position
@@ -768,16 +790,12 @@ ErrorStats StatsOf(std::vector<double> v) {
 
 // Relative errors of the fitted model (user parameters p) against the data,
 // over all samples and by theta_h band (Result::relative_error).
-void RelativeErrors(const Engine& e, const Prepared& d, const std::vector<double>& p, int threads, Result& res) {
+void RelativeErrors(const Engine& e, const Prepared& d, const std::vector<double>& p, Result& res) {
   const std::size_t n = d.size();
   std::vector<Eigen::Array3d> pred(n);
-  const std::size_t workers = static_cast<std::size_t>(std::max(1, threads));
-  std::vector<std::thread> pool;
-  for (std::size_t w = 0; w < workers; ++w)
-    pool.emplace_back([&, w] {
-      for (std::size_t q = n * w / workers; q < n * (w + 1) / workers; ++q) pred[q] = e.Predict(p, d, q);
-    });
-  for (auto& t : pool) t.join();
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 256), [&](const tbb::blocked_range<std::size_t>& r) {
+    for (std::size_t q = r.begin(); q < r.end(); ++q) pred[q] = e.Predict(p, d, q);
+  });
   Eigen::Array3d mean = Eigen::Array3d::Zero();
   for (const Eigen::Array3d& g : d.reference) mean += g.abs();
   // The floor keeps reference values near zero from dominating (as the relative metric).
@@ -806,28 +824,21 @@ void RelativeErrors(const Engine& e, const Prepared& d, const std::vector<double
 }
 
 // J^T J over all residual blocks (internal parameters).
-Eigen::MatrixXd NormalMatrix(const Engine& e, const Prepared& d, const std::vector<double>& u, std::size_t chunk,
-                             int threads) {
+Eigen::MatrixXd NormalMatrix(const Engine& e, const Prepared& d, const std::vector<double>& u, std::size_t chunk) {
   const std::size_t n = e.n();
-  const std::size_t workers = static_cast<std::size_t>(std::max(1, threads));
-  std::vector<Eigen::MatrixXd> parts(workers, Eigen::MatrixXd::Zero(n, n));
   const std::size_t blocks = (d.size() + chunk - 1) / chunk;
-  std::vector<std::thread> pool;
-  for (std::size_t w = 0; w < workers; ++w)
-    pool.emplace_back([&, w] {
-      std::vector<double> r(3 * chunk), jac(3 * chunk * n);
-      for (std::size_t b = w; b < blocks; b += workers) {
-        const std::size_t begin = b * chunk, end = std::min(d.size(), begin + chunk);
-        e.EvalJacobian(u.data(), d, begin, end, r.data(), jac.data());
-        Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> J(
-            jac.data(), static_cast<Eigen::Index>(3 * (end - begin)), static_cast<Eigen::Index>(n));
-        parts[w].noalias() += J.transpose() * J;
-      }
-    });
-  for (auto& t : pool) t.join();
-  Eigen::MatrixXd out = Eigen::MatrixXd::Zero(n, n);
-  for (const auto& m : parts) out += m;
-  return out;
+  return ChunkedSum(blocks, 8, Eigen::MatrixXd(Eigen::MatrixXd::Zero(n, n)), [&](std::size_t first, std::size_t last) {
+    Eigen::MatrixXd part = Eigen::MatrixXd::Zero(n, n);
+    std::vector<double> r(3 * chunk), jac(3 * chunk * n);
+    for (std::size_t b = first; b < last; ++b) {
+      const std::size_t begin = b * chunk, end = std::min(d.size(), begin + chunk);
+      e.EvalJacobian(u.data(), d, begin, end, r.data(), jac.data());
+      Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> J(
+          jac.data(), static_cast<Eigen::Index>(3 * (end - begin)), static_cast<Eigen::Index>(n));
+      part.noalias() += J.transpose() * J;
+    }
+    return part;
+  });
 }
 
 // Plain-words diagnosis of parameters the data cannot determine; empty when
@@ -1340,26 +1351,15 @@ class StartSearch {
   // Cost (half the sum of squared residuals) of p on all samples.
   double FullCost(const Engine& e, const std::vector<double>& p) const {
     const std::vector<double> u = e.ToInternal(p);
-    const std::size_t n = full_.size(), chunk = 256;
-    const std::size_t workers = static_cast<std::size_t>(std::max(1, o_.num_threads));
-    std::vector<double> sums(workers, 0.0);
-    std::vector<std::thread> pool;
-    for (std::size_t w = 0; w < workers; ++w)
-      pool.emplace_back([&, w] {
-        std::vector<double> r(3 * chunk);
-        const std::size_t begin = n * w / workers, end = n * (w + 1) / workers;
-        for (std::size_t b = begin; b < end; b += chunk) {
-          const std::size_t e_end = std::min(end, b + chunk);
-          // A non-finite residual makes the point unusable.
-          if (!e.EvalDouble(u.data(), full_, b, e_end, true, r.data())) {
-            sums[w] = std::numeric_limits<double>::infinity();
-            return;
-          }
-          for (std::size_t k = 0; k < 3 * (e_end - b); ++k) sums[w] += 0.5 * r[k] * r[k];
-        }
-      });
-    for (auto& t : pool) t.join();
-    return std::accumulate(sums.begin(), sums.end(), 0.0);
+    constexpr std::size_t chunk = 256;
+    return ChunkedSum(full_.size(), chunk, 0.0, [&](std::size_t begin, std::size_t end) {
+      double r[3 * chunk];
+      // A non-finite residual makes the point unusable.
+      if (!e.EvalDouble(u.data(), full_, begin, end, true, r)) return std::numeric_limits<double>::infinity();
+      double s = 0;
+      for (std::size_t k = 0; k < 3 * (end - begin); ++k) s += 0.5 * r[k] * r[k];
+      return s;
+    });
   }
 
   // Solves from p over `d` for at most `iterations`; the solution is put in
@@ -1379,7 +1379,7 @@ class StartSearch {
     TraceCallback callback([&](const ceres::IterationSummary& s) {
       if (s.iteration > 0 && !s.step_is_successful) return;
       // Without sigma the plain engine's cost is the metric's sum of squares / 2.
-      const double rmse = sigma_ ? Rmse(e, d, u, o_.num_threads) : std::sqrt(2 * s.cost / (3.0 * d.size()));
+      const double rmse = sigma_ ? Rmse(e, d, u) : std::sqrt(2 * s.cost / (3.0 * d.size()));
       res_.trace.push_back({s.iteration, elapsed_(), s.cost, rmse, start, stage});
     });
     so.callbacks.push_back(&callback);
@@ -1421,7 +1421,8 @@ double MetricRmse(const Model& model, const std::vector<double>& params, const D
   const Selection sel = Select(data, options);
   const Prepared d = Prepare(data, sel.index, options);
   const Engine e(ModelEvaluators(model), options, 1.0, AllFree(model.Info()));
-  return Rmse(e, d, e.ToInternal(params), options.num_threads);
+  tbb::task_arena arena(std::clamp(options.num_threads, 1, std::max(1, tbb::info::default_concurrency())));
+  return arena.execute([&] { return Rmse(e, d, e.ToInternal(params)); });
 }
 
 struct ResidualBlocks::Impl {
@@ -1451,11 +1452,24 @@ Result Fit(const Model& model, const Dataset& data, const Options& options) {
   return res;
 }
 
+namespace {
+Result FitInArena(const Evaluators& model, const Dataset& data, const Options& o);
+}  // namespace
+
 Result Fit(const Evaluators& model, const Dataset& data, const Options& options) {
-  // More worker threads than hardware threads only cost memory and start-up
-  // (a count such as 100000 would exhaust the process's thread limit).
+  // More worker threads than the machine offers only cost memory and
+  // start-up (a count such as 100000 would exhaust the process's thread limit).
   Options o = options;
-  o.num_threads = std::clamp(o.num_threads, 1, int(std::max(1u, std::thread::hardware_concurrency())));
+  o.num_threads = std::clamp(o.num_threads, 1, std::max(1, tbb::info::default_concurrency()));
+  // The project's TBB pool, limited to num_threads for this fit; Ceres runs
+  // its solver threads itself.
+  tbb::task_arena arena(o.num_threads);
+  return arena.execute([&] { return FitInArena(model, data, o); });
+}
+
+namespace {
+
+Result FitInArena(const Evaluators& model, const Dataset& data, const Options& o) {
   using Clock = std::chrono::steady_clock;
   const auto t0 = Clock::now();
   auto elapsed = [&] { return std::chrono::duration<double>(Clock::now() - t0).count(); };
@@ -1595,7 +1609,7 @@ Result Fit(const Evaluators& model, const Dataset& data, const Options& options)
       TraceCallback callback([&](const ceres::IterationSummary& s) {
         if (s.iteration > 0 && !s.step_is_successful) return;
         // Without sigma the plain engine's cost is the metric's sum of squares / 2.
-        const double rmse = sigma ? Rmse(plain, subset, u, o.num_threads) : std::sqrt(2 * s.cost / (3.0 * subset.size()));
+        const double rmse = sigma ? Rmse(plain, subset, u) : std::sqrt(2 * s.cost / (3.0 * subset.size()));
         res.trace.push_back({s.iteration, elapsed(), s.cost, rmse, start, "start " + std::to_string(start) + " (subset)"});
       });
       so.callbacks.push_back(&callback);
@@ -1670,7 +1684,7 @@ Result Fit(const Evaluators& model, const Dataset& data, const Options& options)
     tp.seconds = res.init_seconds + s.cumulative_time_in_seconds;
     tp.cost = s.cost;
     // Without sigma or a robust loss the cost is the metric's sum of squares / 2.
-    tp.rmse = weights_are_metric ? std::sqrt(2 * s.cost / m) : Rmse(engine, full, u, o.num_threads);
+    tp.rmse = weights_are_metric ? std::sqrt(2 * s.cost / m) : Rmse(engine, full, u);
     res.trace.push_back(tp);
     if (o.progress) o.progress(s.iteration, tp.seconds, s.cost);
   });
@@ -1701,8 +1715,8 @@ Result Fit(const Evaluators& model, const Dataset& data, const Options& options)
     res.kept = 0;
   }
   res.chi2_reduced = sigma ? residual_variance : std::numeric_limits<double>::quiet_NaN();
-  res.rmse = Rmse(engine, full, u, o.num_threads);
-  RelativeErrors(engine, full, res.params, o.num_threads, res);
+  res.rmse = Rmse(engine, full, u);
+  RelativeErrors(engine, full, res.params, res);
   if (!o.instrument && !data.apertures.empty())
     res.warnings.push_back("the data were measured through finite apertures (" + data.apertures +
                            ", sidecar '" + data.sidecar +
@@ -1726,7 +1740,7 @@ Result Fit(const Evaluators& model, const Dataset& data, const Options& options)
     if (m <= nf) {
       res.covariance_message = "no uncertainty: as many parameters as residuals";
     } else {
-      const Eigen::MatrixXd jtj = NormalMatrix(engine, full, u, chunk, o.num_threads);
+      const Eigen::MatrixXd jtj = NormalMatrix(engine, full, u, chunk);
       const std::string why = Identifiability(jtj, free_names);
       if (!why.empty()) {
         res.covariance_message = "no uncertainty: the problem is rank deficient: " + why;
@@ -1777,5 +1791,7 @@ Result Fit(const Evaluators& model, const Dataset& data, const Options& options)
   res.seconds = elapsed();
   return res;
 }
+
+}  // namespace
 
 }  // namespace brdfkit::fit

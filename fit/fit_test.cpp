@@ -139,6 +139,30 @@ TEST(Fit, EveryMetricRecoversNoiselessTruth) {
   }
 }
 
+// The fit's own sums (cost of starts, RMSE, J^T J for the uncertainty) run
+// on the TBB pool in chunks that do not depend on the thread count: one
+// thread and many give the same optimum, RMSE and standard deviations, and
+// an absurd count is capped rather than started.
+TEST(Fit, ThreadCountChangesNothingButTheTime) {
+  const Model m = Model::Parse("lambert+ggx");
+  const std::vector<double> truth = ParseParams(m.Info(), "lambert.albedo=0.3:0.2:0.1,ggx.alpha=0.2,ggx.f0=0.9:0.7:0.5");
+  const Dataset d = Synthesise(m, truth, 3000, 17, 0.02, 1e-3);
+  std::vector<Result> runs;
+  for (int threads : {1, 2, 100000}) {
+    Options o;
+    o.num_threads = threads;
+    runs.push_back(Fit(m, d, o));
+  }
+  for (const Result& r : runs) {
+    ASSERT_TRUE(r.covariance_ok) << r.covariance_message;
+    ExpectRecovered(r, runs[0].params, 1e-9);
+    EXPECT_NEAR(r.rmse, runs[0].rmse, 1e-12 * runs[0].rmse);
+    for (std::size_t k = 0; k < r.stddev.size(); ++k) EXPECT_NEAR(r.stddev[k], runs[0].stddev[k], 1e-6 * runs[0].stddev[k]);
+  }
+  // And the noisy fit is near the truth it was drawn from.
+  ExpectRecovered(runs[0], truth, 0.05);
+}
+
 // Noisy data with known sigma: the estimates scatter about the truth as the
 // reported standard deviations say.
 TEST(Fit, ReportedUncertaintyMatchesSpread) {
