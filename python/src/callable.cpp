@@ -30,6 +30,31 @@ PythonModel::~PythonModel() {
   width = py::object();
 }
 
+namespace {
+
+// A thread's Python state kept between calls of Python functions from that
+// thread, deleted when the thread ends (the tools' worker threads end with
+// each call) while the interpreter still runs.
+class KeptThreadState {
+ public:
+  void Keep(py::gil_scoped_acquire& gil) {
+    if (kept_) return;
+    gil.inc_ref();
+    kept_ = true;
+  }
+  ~KeptThreadState() {
+    // At interpreter shutdown the state goes with the interpreter.
+    if (!kept_ || !Py_IsInitialized() || _Py_IsFinalizing()) return;
+    py::gil_scoped_acquire gil;
+    gil.dec_ref();
+  }
+
+ private:
+  bool kept_ = false;
+};
+
+}  // namespace
+
 bool CallState::Stopped() const {
   std::lock_guard<std::mutex> lock(mutex_);
   return error_ || (token_ && token_->cancelled());
@@ -158,11 +183,8 @@ class Caller {
       py::gil_scoped_acquire gil;
       // The thread's Python state is kept after the first call: creating
       // and deleting one per call costs ten times the call of a small function.
-      thread_local bool kept = false;
-      if (!kept) {
-        gil.inc_ref();
-        kept = true;
-      }
+      thread_local KeptThreadState kept;
+      kept.Keep(gil);
       body();
       return true;
     } catch (...) {

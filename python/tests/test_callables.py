@@ -117,6 +117,28 @@ def test_albedo_table_of_a_python_model_equals_the_builtin_table():
     np.testing.assert_allclose(py["E"].reshape(3, 4), np.repeat(py["axes"][0]["nodes"][:, None], 4, axis=1), atol=2e-6)
 
 
+def test_albedo_of_a_glossy_python_model_is_batched_and_equals_the_builtin_table():
+    seen = []
+
+    def counted(wi, wo, p):
+        seen.append(len(wi))
+        return ggx(wi, wo, p)
+
+    model = brdfkit.PythonModel(counted, ALPHA_F0, kind="glossy", width=lambda p: p["alpha"], name="counted_ggx")
+    axes = "mu:5,alpha:3:0.1:0.6"
+    py = brdfkit.albedo_table(model, {"f0": 1.0}, axes=axes, tolerance=1e-6, threads=1)
+    ref = brdfkit.albedo_table("ggx", {"f0": 1.0}, axes=axes, tolerance=1e-6, threads=1)
+    np.testing.assert_allclose(py["E"], ref["E"], atol=2e-6)
+    np.testing.assert_allclose(py["E_avg"], ref["E_avg"], atol=2e-6)
+    # Each Gauss-Kronrod rule (15 nodes; a first pass several rules) in one call.
+    assert len(seen) > 0 and sum(seen) / len(seen) >= 15
+    # check's reciprocity pairs in two calls of as many rows as pairs.
+    seen.clear()
+    r = brdfkit.check(model, {"alpha": 0.3, "f0": 1.0}, sampling=False, random_pairs=300, threads=1)
+    assert r["reciprocity_max_rel_error"] < 1e-12
+    assert seen.count(r["reciprocity_pairs"]) == 2
+
+
 def test_synth_of_a_python_model_equals_the_builtin_synth():
     model = brdfkit.PythonModel(lambert_ggx, {**ALBEDO, **ALPHA_F0}, kind="diffuse+glossy",
                                 width=lambda p: p["alpha"])
@@ -246,3 +268,29 @@ def test_tabulated_function():
         brdfkit.fit(tab, wi, wo, g)
     with pytest.raises(ValueError, match="same N"):
         brdfkit.Tabulated(wi, wo[:5], f)
+
+
+def python_thread_states():
+    """The number of Python thread states of this interpreter."""
+    import ctypes
+    api = ctypes.pythonapi
+    api.PyInterpreterState_Get.restype = ctypes.c_void_p
+    api.PyInterpreterState_ThreadHead.restype = ctypes.c_void_p
+    api.PyInterpreterState_ThreadHead.argtypes = [ctypes.c_void_p]
+    api.PyThreadState_Next.restype = ctypes.c_void_p
+    api.PyThreadState_Next.argtypes = [ctypes.c_void_p]
+    n, ts = 0, api.PyInterpreterState_ThreadHead(api.PyInterpreterState_Get())
+    while ts:
+        n, ts = n + 1, api.PyThreadState_Next(ts)
+    return n
+
+
+def test_tool_calls_leave_no_python_thread_states_behind():
+    # Each call runs on a worker thread of its own, which calls the function:
+    # its Python state must go with it.
+    for _ in range(3):
+        brdfkit.check(PY_LAMBERT, random_pairs=20, threads=2)
+    before = python_thread_states()
+    for _ in range(20):
+        brdfkit.check(PY_LAMBERT, random_pairs=20, threads=2)
+    assert python_thread_states() - before < 3

@@ -1,0 +1,78 @@
+#!/usr/bin/env python3
+"""Models defined in Python through the tools, against the built-in model, same run.
+
+    PYTHONPATH=build/python /usr/bin/python3 bench/python_models_bench.py
+
+A numpy GGX (Schlick Fresnel, separable Smith: the built-in `ggx`) as a
+brdfkit.PythonModel goes through albedo_table (mu:8, alpha:4) and check;
+the built-in `ggx` does the same. Prints wall seconds, the number of calls
+of the Python function and the directions per call, and the cost of the
+same directions pair by pair (one-row calls, timed in this run).
+"""
+import time
+
+import numpy as np
+
+import brdfkit
+
+calls = {"n": 0, "rows": 0}
+
+
+def ggx(wi, wo, p):
+    calls["n"] += 1
+    calls["rows"] += len(wi)
+    a2 = p["alpha"] ** 2
+    h = wi + wo
+    h /= np.linalg.norm(h, axis=1, keepdims=True)
+    c = h[:, 2]
+    d = a2 / (np.pi * (c * c * (a2 - 1) + 1) ** 2)
+
+    def g1(w):
+        z = w[:, 2]
+        return 2 * z / (z + np.sqrt(a2 + (1 - a2) * z * z))
+
+    f = p["f0"] + (1 - p["f0"]) * (1 - np.clip(np.sum(wi * h, axis=1), 0, 1)) ** 5
+    v = np.where((wi[:, 2] > 0) & (wo[:, 2] > 0), d * g1(wi) * g1(wo) * f / (4 * wi[:, 2] * wo[:, 2]), 0.0)
+    return np.repeat(v[:, None], 3, axis=1)
+
+
+PARAMS = {"alpha": {"default": 0.2, "lower": 1e-3, "upper": 1.0, "scale": "log"},
+          "f0": {"default": 0.04, "lower": 0.0, "upper": 1.0}}
+MODEL = brdfkit.PythonModel(ggx, PARAMS, kind="glossy", width=lambda p: p["alpha"], name="py_ggx")
+
+
+def timed(fn):
+    calls["n"] = calls["rows"] = 0
+    t0 = time.perf_counter()
+    out = fn()
+    return out, time.perf_counter() - t0, calls["n"], calls["rows"]
+
+
+def main():
+    axes = "mu:8,alpha:4:0.05:0.8"
+    rows = []
+    for name, model in (("python", MODEL), ("built-in", "ggx")):
+        t, secs, n, r = timed(lambda: brdfkit.albedo_table(model, {"f0": 1.0}, axes=axes, threads=1))
+        rows.append((f"albedo_table {axes}", name, secs, n, r, t["E"]))
+        c, secs, n, r = timed(lambda: brdfkit.check(model, {"alpha": 0.3, "f0": 1.0}, sampling=False, threads=1))
+        rows.append(("check alpha=0.3", name, secs, n, r, c["albedo_max"]))
+    # One-row calls: what the pair-by-pair evaluation of the same rows costs.
+    wi, wo = np.array([[0.1, 0.2, 0.97]]), np.array([[-0.1, 0.1, 0.99]])
+    p = {"alpha": 0.3, "f0": 1.0}
+    reps = 20000
+    t0 = time.perf_counter()
+    for _ in range(reps):
+        ggx(wi, wo, p)
+    per_call = (time.perf_counter() - t0) / reps
+    print(f"{'task':34s} {'model':9s} {'wall s':>8s} {'calls':>8s} {'rows/call':>9s} {'pair by pair (est.) s':>22s}")
+    for task, name, secs, n, r, _ in rows:
+        est = f"{r * per_call:.1f}" if name == "python" else ""
+        per = f"{r / n:.1f}" if n else ""
+        print(f"{task:34s} {name:9s} {secs:8.2f} {n if name == 'python' else '':>8} {per:>9s} {est:>22s}")
+    print(f"one-row call of the numpy function: {per_call * 1e6:.1f} us")
+    e_py, e_ref = rows[0][5], rows[2][5]
+    print(f"max |E_python - E_builtin| = {np.max(np.abs(np.asarray(e_py) - np.asarray(e_ref))):.2e}")
+
+
+if __name__ == "__main__":
+    main()
