@@ -3,7 +3,7 @@
 
     PYTHONPATH=build/python /usr/bin/python3 bench/python_models_bench.py
 
-A numpy GGX (Schlick Fresnel, separable Smith: the built-in `ggx`) as a
+A numpy GGX (Schlick Fresnel, height-correlated Smith: the built-in `ggx`) as a
 brdfkit.PythonModel goes through albedo_table (mu:8, alpha:4) and check;
 the built-in `ggx` does the same. Prints wall seconds, the number of calls
 of the Python function and the directions per call, and the cost of the
@@ -27,12 +27,13 @@ def ggx(wi, wo, p):
     c = h[:, 2]
     d = a2 / (np.pi * (c * c * (a2 - 1) + 1) ** 2)
 
-    def g1(w):
-        z = w[:, 2]
-        return 2 * z / (z + np.sqrt(a2 + (1 - a2) * z * z))
+    def lam(w):
+        z2 = np.clip(w[:, 2] ** 2, 1e-300, None)
+        return 0.5 * (np.sqrt(1 + a2 * (1 - z2) / z2) - 1)
 
     f = p["f0"] + (1 - p["f0"]) * (1 - np.clip(np.sum(wi * h, axis=1), 0, 1)) ** 5
-    v = np.where((wi[:, 2] > 0) & (wo[:, 2] > 0), d * g1(wi) * g1(wo) * f / (4 * wi[:, 2] * wo[:, 2]), 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v = np.where((wi[:, 2] > 0) & (wo[:, 2] > 0), d * f / ((1 + lam(wi) + lam(wo)) * 4 * wi[:, 2] * wo[:, 2]), 0.0)
     return np.repeat(v[:, None], 3, axis=1)
 
 
