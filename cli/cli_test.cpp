@@ -106,9 +106,40 @@ TEST(Cli, EveryCommandHasHelp) {
   }
 }
 
+// --part picks what a transmitting model's entries hold, and the table says
+// which; its "params" lists the parameters held fixed, not the axes'.
+TEST(Cli, AlbedoPartOfAGlassAndTheFixedParameters) {
+  const fs::path dir = FreshDir("albedo-part");
+  const CliRun r = Brdfkit("albedo -m ggx_glass -p alpha=0.3 --axes mu:3:0.5:1,eta:2:1.3:1.5 --part reflected "
+                           "--tolerance 1e-5 --json --exr " + (dir / "r.exr").string());
+  ASSERT_EQ(r.code, 0) << r.out;
+  // The JSON line, among the summary line on stderr.
+  const auto json_line = [](const std::string& out) {
+    const std::size_t b = out.find('{');
+    return nlohmann::json::parse(out.substr(b, out.find('\n', b) - b));
+  };
+  const nlohmann::json j = json_line(r.out);
+  EXPECT_EQ(j["part"], "E_R");
+  EXPECT_EQ(j["params"], "alpha=0.3");
+  // Normal incidence on eta = 1.5: about the Fresnel reflectance 0.04.
+  const std::vector<double> e = j["E"].get<std::vector<double>>();
+  ASSERT_EQ(e.size(), 6u);
+  EXPECT_NEAR(e[5], 0.04, 5e-3);
+  EXPECT_GT(e[5], e[2]);  // more reflected at eta 1.5 than at 1.3
+  const CliRun plain = Brdfkit("albedo -m ggx --axes mu:3,alpha:2:0.1:0.5 -p f0=0.5 --json");
+  ASSERT_EQ(plain.code, 0) << plain.out;
+  const nlohmann::json k = json_line(plain.out);
+  EXPECT_EQ(k["part"], "E");
+  EXPECT_EQ(k["params"], "f0=0.5:0.5:0.5");
+  const CliRun bad = Brdfkit("albedo -m ggx_glass --axes mu:3,eta:2:1.3:1.5 --part both");
+  EXPECT_NE(bad.code, 0);
+  EXPECT_NE(bad.out.find("--part"), std::string::npos) << bad.out;
+}
+
 // Every generated C header compiles with g++ and clang, as C and as C++,
-// with -Wall -Wextra -Werror -pedantic, holds only finite literals, and its
-// arrays read back the CSV's values (to float precision).
+// with -Wall -Wextra -Werror -pedantic, holds only finite literals, its
+// arrays read back the CSV's values (to float precision), and its lookup
+// functions interpolate them.
 TEST(Cli, AlbedoHeadersCompileAsCAndCppAndMatchTheCsv) {
   const fs::path dir = FreshDir("albedo-header");
   struct Case {
@@ -132,8 +163,33 @@ TEST(Cli, AlbedoHeadersCompileAsCAndCppAndMatchTheCsv) {
                  "    }\n  }"
                : "j = 0;\n  for (i = 0; i < ggx_albedo_n_alpha; ++i) {\n"
                  "    for (m = 0; m < ggx_albedo_n_mu; ++m) printf(\"%.9g\\n\", (double)ggx_albedo_E[i][m]);\n  }";
-    const std::string prog = "#include <stdio.h>\n#include \"" + stem + ".h\"\n#include \"" + stem +
-                             ".h\"\nint main(void) {\n  int i, j, m;\n  " + loops + "\n  (void)j;\n  return 0;\n}\n";
+    // The lookups: exact at every node, the mean of two neighbours halfway
+    // between them (in mu, and in sqrt(alpha), the alpha nodes' spacing),
+    // clamped outside the table. The exit code counts the failures.
+    const std::string f0 = k == 2 ? ", ggx_albedo_f0_nodes[0]" : "";
+    const std::string at = k == 2 ? "[0]" : "";
+    const std::string checks =
+        "  for (i = 0; i < ggx_albedo_n_alpha; ++i) {\n"
+        "    for (m = 0; m < ggx_albedo_n_mu; ++m) {\n"
+        "      a = ggx_albedo_alpha_nodes[i];\n"
+        "      if (ggx_albedo_E_lookup(ggx_albedo_mu_nodes[m], a" + f0 + ") != ggx_albedo_E[i]" + at + "[m]) ++bad;\n"
+        "      if (m + 1 < ggx_albedo_n_mu) {\n"
+        "        v = ggx_albedo_E_lookup(0.5f * (ggx_albedo_mu_nodes[m] + ggx_albedo_mu_nodes[m + 1]), a" + f0 + ");\n"
+        "        if (fabs(v - 0.5 * (ggx_albedo_E[i]" + at + "[m] + ggx_albedo_E[i]" + at + "[m + 1])) > 1e-6) ++bad;\n"
+        "      }\n"
+        "      if (i + 1 < ggx_albedo_n_alpha) {\n"
+        "        a = 0.5 * (sqrt(ggx_albedo_alpha_nodes[i]) + sqrt(ggx_albedo_alpha_nodes[i + 1]));\n"
+        "        v = ggx_albedo_E_lookup(ggx_albedo_mu_nodes[m], (float)(a * a)" + f0 + ");\n"
+        "        if (fabs(v - 0.5 * (ggx_albedo_E[i]" + at + "[m] + ggx_albedo_E[i + 1]" + at + "[m])) > 1e-5) ++bad;\n"
+        "      }\n"
+        "    }\n"
+        "    if (ggx_albedo_E_avg_lookup(ggx_albedo_alpha_nodes[i]" + f0 + ") != ggx_albedo_E_avg[i]" + at + ") ++bad;\n"
+        "  }\n"
+        "  if (ggx_albedo_E_lookup(-1.0f, 100.0f" + f0 + ") != ggx_albedo_E[ggx_albedo_n_alpha - 1]" + at + "[0]) ++bad;\n"
+        "  if (ggx_albedo_E_lookup(2.0f, 0.0f" + f0 + ") != ggx_albedo_E[0]" + at + "[ggx_albedo_n_mu - 1]) ++bad;\n";
+    const std::string prog = "#include <math.h>\n#include <stdio.h>\n#include \"" + stem + ".h\"\n#include \"" + stem +
+                             ".h\"\nint main(void) {\n  int i, j, m, bad = 0;\n  double a, v;\n  " + loops +
+                             "\n  (void)j;\n" + checks + "  return bad;\n}\n";
     WriteText(stem + "_main.c", prog);
     WriteText(stem + "_main.cpp", prog);
     std::string expected;
@@ -149,10 +205,10 @@ TEST(Cli, AlbedoHeadersCompileAsCAndCppAndMatchTheCsv) {
       const bool cpp = compiler.find("++") != std::string::npos;
       const std::string exe = stem + "_prog";
       const CliRun c = Shell(compiler + " -Wall -Wextra -Werror -pedantic " + stem + (cpp ? "_main.cpp" : "_main.c") +
-                             " -o " + exe);
+                             " -o " + exe + " -lm");
       ASSERT_EQ(c.code, 0) << compiler << " on " << axes[k] << ":\n" << c.out;
       const CliRun out = Shell(exe);
-      ASSERT_EQ(out.code, 0);
+      ASSERT_EQ(out.code, 0) << compiler << " on " << axes[k] << ": lookups that failed";
       std::istringstream got(out.out), want(expected);
       std::string g, w;
       std::size_t count = 0;

@@ -13,7 +13,8 @@
 namespace brdfkit::cli {
 
 nlohmann::json AlbedoTableJson(const validate::AlbedoTable& t) {
-  nlohmann::json j = {{"model", t.model}, {"params", t.params_text}, {"mu", t.mu.nodes},
+  nlohmann::json j = {{"model", t.model}, {"params", t.params_text}, {"part", t.part.empty() ? "E" : t.part},
+                      {"mu", t.mu.nodes},
                       {"E", t.E},         {"E_avg", t.E_avg},        {"ms_norm", t.ms_norm},
                       {"max_error", t.max_error}, {"limit_error", t.limit_error}, {"seconds", t.seconds}};
   nlohmann::json axes_j = nlohmann::json::array();
@@ -34,7 +35,7 @@ void RegisterAlbedo(CLI::App& app) {
       "directional albedo tables E(mu, p) for renderers, E_avg(p) = 2 int E mu dmu, and the Kulla-Conty "
       "multiple-scattering compensation terms. The entry at mu = 0 holds the limit mu -> 0.");
   static ModelArgs margs;
-  static std::string axes, nodes = "uniform", csv, exr, header, prefix;
+  static std::string axes, nodes = "uniform", csv, exr, header, prefix, part = "total";
   static double tolerance = validate::AlbedoQuadratureOptions{}.abs_tolerance, accept_error = 0;
   static std::string slice;
   static int channel = 0, threads = 0;
@@ -48,6 +49,10 @@ void RegisterAlbedo(CLI::App& app) {
                   "uniform: mu uniform on [0, 1], roughness (log-scale parameters) uniform in sqrt(p), others "
                   "uniform, ends included; gauss: Gauss-Legendre nodes in the same coordinates (ends excluded)")
       ->check(CLI::IsMember({"uniform", "gauss"}));
+  cmd->add_option("--part", part,
+                  "for a transmitting model (ggx_glass, ...): total (E_R + E_T, the power scattered from light along "
+                  "wo), reflected (E_R) or transmitted (E_T); other models tabulate E")
+      ->check(CLI::IsMember(validate::PartNames()));
   cmd->add_option("--csv", csv,
                   "write FILE as mu,<p>[,<p2>],E and beside it <stem>_avg.csv (<p>[,<p2>],E_avg), <stem>_ms.csv "
                   "(E_avg, ms_norm = 1/(pi (1 - E_avg)) [, F_avg, E1_avg, F_ms]) and with an f0 axis <stem>_f1.csv "
@@ -79,6 +84,7 @@ void RegisterAlbedo(CLI::App& app) {
     req.axes = validate::ParseAxes(axes);
     req.rule = nodes == "gauss" ? validate::NodeRule::kGauss : validate::NodeRule::kUniform;
     req.quadrature.abs_tolerance = tolerance;
+    req.quadrature.part = validate::ParsePart(part);
     req.channel = channel;
     if (!slice.empty()) {
       const std::size_t colon = slice.find(':');

@@ -156,6 +156,7 @@ TaskOutcome AlbedoTask::Run(const TaskSpec& spec, const RunContext& ctx) const {
   req.axes = validate::ParseAxes(t.axes);
   req.rule = t.gauss_nodes ? validate::NodeRule::kGauss : validate::NodeRule::kUniform;
   req.quadrature.abs_tolerance = t.tolerance;
+  req.quadrature.part = validate::ParsePart(t.part);
   ThreadedProgress progress("albedo " + spec.name, ctx.quiet);
   req.progress = progress.Callback();
   const validate::AlbedoTable table = validate::BuildAlbedoTable(model, t.params, req);
@@ -205,7 +206,8 @@ TaskOutcome AlbedoTask::Run(const TaskSpec& spec, const RunContext& ctx) const {
                        "E_avg = 2 int E(mu) mu dmu; the Kulla-Conty lobe's normalisation is 1 / (pi (1 - E_avg))."});
   json axes = json::array();
   for (const validate::Axis& a : table.params) axes.push_back({{"name", a.name}, {"nodes", a.nodes}});
-  o.result = {{"model", table.model},      {"params", table.params_text}, {"mu", table.mu.nodes},
+  o.result = {{"model", table.model},      {"params", table.params_text}, {"part", table.part.empty() ? "E" : table.part},
+              {"mu", table.mu.nodes},
               {"axes", axes},              {"E_avg", table.E_avg},         {"entries", table.E.size()},
               {"max_error", table.max_error}, {"limit_error", table.limit_error}, {"table_seconds", table.seconds}};
   return o;

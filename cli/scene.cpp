@@ -345,6 +345,12 @@ void AlbedoTask::Parse(SceneReader& r, const Scene& /*scene*/) {
   t.gauss_nodes = nodes == "gauss";
   t.tolerance = r.Number("tolerance", t.tolerance, 1e-12, 1e-2);
   t.accept_error = r.Number("accept_error", t.accept_error, 1e-12, 1e3);
+  t.part = r.String("part", t.part);
+  try {
+    validate::ParsePart(t.part);
+  } catch (const std::exception& e) {
+    r.FailKey("part", e.what());
+  }
   t.formats = r.Strings("formats", false);
   if (!r.Has("formats")) t.formats = {"csv", "exr", "header"};
   for (const std::string& f : t.formats)
@@ -492,6 +498,7 @@ nlohmann::json SceneNames() {
   return json{{"task_types", TaskTypeNames()},
               {"instrument_types", {"gonioreflectometer", "camera"}},
               {"albedo_nodes", {"uniform", "gauss"}},
+              {"albedo_parts", validate::PartNames()},
               {"albedo_formats", kAlbedoFormats},
               {"synth_formats", kSynthFormats},
               {"metrics", metrics},

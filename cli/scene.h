@@ -75,6 +75,7 @@ struct AlbedoTask : TaskTypeBase {
   bool gauss_nodes = false;
   double tolerance = 1e-6;  // as validate::AlbedoQuadratureOptions
   double accept_error = 0;  // largest accepted error estimate (0: the tolerance)
+  std::string part = "total";  // a transmitting model's entries: total, reflected or transmitted
   std::vector<std::string> formats;  // csv, exr, header
 
   void Parse(SceneReader& r, const Scene& s);

@@ -123,6 +123,16 @@ AlbedoValue AverageAlbedo(const Bxdf<double>& bxdf, const double* p, const LobeS
 
 // --- tables ----------------------------------------------------------------
 
+std::vector<std::string> PartNames() { return {"total", "reflected", "transmitted"}; }
+
+AlbedoQuadratureOptions::Part ParsePart(const std::string& text) {
+  using Part = AlbedoQuadratureOptions::Part;
+  const std::vector<std::string> names = PartNames();
+  for (std::size_t k = 0; k < names.size(); ++k)
+    if (text == names[k]) return static_cast<Part>(k);
+  throw ModelError("part '" + text + "': expected total (E_R + E_T), reflected (E_R) or transmitted (E_T)");
+}
+
 std::vector<AxisSpec> ParseAxes(const std::string& text) {
   std::vector<AxisSpec> out;
   std::stringstream ss(text);
@@ -208,7 +218,6 @@ AlbedoTable BuildAlbedoTable(const Bxdf<double>& model, const std::string& spec,
   AlbedoTable t;
   t.model = spec;
   t.base_params = base_params;
-  t.params_text = FormatParams(info, base_params);
   t.mu.name = "mu";
   {
     const AxisSpec& a = req.axes[0];
@@ -260,6 +269,23 @@ AlbedoTable BuildAlbedoTable(const Bxdf<double>& model, const std::string& spec,
     }
     if (a.name == "f0") t.f0_axis = static_cast<int>(t.params.size());
     t.params.push_back(std::move(axis));
+  }
+
+  // The parameters held fixed (those of the axes vary over the table).
+  {
+    std::stringstream all(FormatParams(info, base_params));
+    std::string item;
+    while (std::getline(all, item, ',')) {
+      const std::string name = item.substr(0, item.find('='));
+      const bool on_axis = std::any_of(t.params.begin(), t.params.end(),
+                                       [&](const Axis& a) { return info.params[a.param_index].name == name; });
+      if (!on_axis) t.params_text += (t.params_text.empty() ? "" : ",") + item;
+    }
+  }
+  if (model.Kind() & LobeKind::kTransmission) {
+    using Part = AlbedoQuadratureOptions::Part;
+    const Part part = req.quadrature.part;
+    t.part = part == Part::kReflected ? "E_R" : part == Part::kTransmitted ? "E_T" : "E_R+E_T";
   }
 
   const std::size_t n_mu = t.n_mu(), n1 = t.n1(), n2 = t.n2();
@@ -524,9 +550,11 @@ void WriteAlbedoExr(const AlbedoTable& t, const std::string& path) {
     h.setName(im.name);
     h.setType(Imf::SCANLINEIMAGE);
     h.compression() = Imf::ZIP_COMPRESSION;
-    h.channels().insert("E", Imf::Channel(Imf::FLOAT));
+    // Y: one grey channel, which texture loaders read as luminance.
+    h.channels().insert("Y", Imf::Channel(Imf::FLOAT));
     h.insert("brdfkit.model", Imf::StringAttribute(t.model));
     h.insert("brdfkit.params", Imf::StringAttribute(t.params_text));
+    if (!t.part.empty()) h.insert("brdfkit.part", Imf::StringAttribute(t.part));
     h.insert("brdfkit.axes", Imf::StringAttribute(AxesText(t)));
     h.insert("brdfkit.nodes.mu", Imf::FloatVectorAttribute(to_float(t.mu.nodes)));
     for (const Axis& a : t.params) h.insert("brdfkit.nodes." + a.name, Imf::FloatVectorAttribute(to_float(a.nodes)));
@@ -540,7 +568,7 @@ void WriteAlbedoExr(const AlbedoTable& t, const std::string& path) {
       Image& im = images[i];
       Imf::OutputPart part(out, int(i));
       Imf::FrameBuffer fb;
-      fb.insert("E", Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(im.data.data()), sizeof(float),
+      fb.insert("Y", Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(im.data.data()), sizeof(float),
                                 sizeof(float) * im.width));
       part.setFrameBuffer(fb);
       part.writePixels(im.height);
@@ -612,11 +640,12 @@ void WriteAlbedoHeader(const AlbedoTable& t, const std::string& path, const std:
     << " * model: " << t.model << "\n"
     << " * params: " << t.params_text << "\n"
     << " * axes: " << AxesText(t) << " (mu = cos(theta_o); mu runs fastest)\n"
+    << (t.part.empty() ? std::string() : " * entries: " + t.part + " (reflected, transmitted or scattered power)\n")
     << " * E at mu = 0 holds the limit mu -> 0. Compensation lobe (Kulla & Conty 2017):\n"
     << " *   f_ms(wi, wo) = (1 - E(mu_i)) (1 - E(mu_o)) * ms_norm, ms_norm = 1 / (pi (1 - E_avg)),\n"
     << " *   and ms_norm = 0 where E_avg >= 1 (nothing is lost, the compensation lobe vanishes).\n"
     << " * Valid C89 and C++: float arrays and node arrays, all finite. */\n"
-    << "#ifndef " << guard << "\n#define " << guard << "\n\n"
+    << "#ifndef " << guard << "\n#define " << guard << "\n\n#include <math.h>\n\n"
     << "#if defined(__GNUC__) || defined(__clang__)\n#define " << upper << "_UNUSED __attribute__((unused))\n"
     << "#else\n#define " << upper << "_UNUSED\n#endif\n\n";
   s << "enum { " << prefix << "_n_mu = " << t.n_mu();
@@ -636,6 +665,67 @@ void WriteAlbedoHeader(const AlbedoTable& t, const std::string& path, const std:
     array("E1_avg", t.E1_avg, {n_other}, "E_avg with F = 1");
     array("F_ms", t.F_ms, dims_p, "F_avg^2 E1_avg / (1 - F_avg (1 - E1_avg)), multiplies f_ms");
   }
+  // Lookups: clamped linear interpolation along every axis, in the axis's
+  // node coordinate.
+  const std::string loc = prefix + "_locate";
+  s << "/* Lookups (C89 and C++): clamped linear interpolation between the nodes of\n"
+    << " * every axis, in the coordinate the nodes are spaced in (sqrt(x) for an axis\n"
+    << " * spaced in sqrt(x), x otherwise); exact at the nodes. As textures, texel i\n"
+    << " * of an axis holds node i: with uniform nodes a renderer's linear filter\n"
+    << " * reads the same values at u = (0.5 + (n - 1) t) / n, t = (c(x) - c(x_0)) /\n"
+    << " * (c(x_{n-1}) - c(x_0)); Gauss nodes are not evenly spaced and need these\n"
+    << " * functions. */\n"
+    << "static float " << loc << "(const float *nodes, int n, float x, int sq, int *i) " << upper << "_UNUSED;\n"
+    << "static float " << loc << "(const float *nodes, int n, float x, int sq, int *i) {\n"
+    << "  int lo = 0, hi = n - 1;\n  float c, c0, c1;\n"
+    << "  if (n < 2) {\n    *i = 0;\n    return 0.0f;\n  }\n"
+    << "  while (hi - lo > 1) {\n    int mid = (lo + hi) / 2;\n    if (nodes[mid] <= x) lo = mid; else hi = mid;\n  }\n"
+    << "  *i = lo;\n"
+    << "  c = sq ? (float)sqrt(x > 0.0f ? x : 0.0f) : x;\n"
+    << "  c0 = sq ? (float)sqrt(nodes[lo]) : nodes[lo];\n"
+    << "  c1 = sq ? (float)sqrt(nodes[lo + 1]) : nodes[lo + 1];\n"
+    << "  c = (c - c0) / (c1 - c0);\n"
+    << "  return c < 0.0f ? 0.0f : (c > 1.0f ? 1.0f : c);\n}\n\n";
+  struct LookupAxis {
+    std::string arg, nodes, count;
+    bool sq;
+  };
+  std::vector<LookupAxis> param_axes;
+  for (const Axis& a : t.params)
+    param_axes.push_back({a.name, prefix + "_" + a.name + "_nodes", prefix + "_n_" + a.name, a.sqrt_spacing});
+  const LookupAxis mu_axis{"mu", prefix + "_mu_nodes", prefix + "_n_mu", false};
+  // name_lookup(args...) over `dims` (the array's axes, last fastest); the
+  // arguments are mu first (when on the array) then the parameters.
+  const auto lookup = [&](const std::string& name, const std::vector<LookupAxis>& dims, const std::string& what) {
+    std::vector<const LookupAxis*> args;
+    for (const LookupAxis& d : dims)
+      if (d.arg == "mu") args.push_back(&d);
+    for (const LookupAxis& d : dims)
+      if (d.arg != "mu") args.push_back(&d);
+    std::string sig = "static float " + prefix + "_" + name + "_lookup(";
+    for (std::size_t k = 0; k < args.size(); ++k) sig += (k ? ", float " : "float ") + args[k]->arg;
+    sig += ")";
+    s << "/* " << what << " */\n" << sig << " " << upper << "_UNUSED;\n" << sig << " {\n";
+    s << "  int i[" << dims.size() << "], j[" << dims.size() << "];\n  float w[" << dims.size() << "];\n";
+    for (std::size_t d = 0; d < dims.size(); ++d) {
+      s << "  w[" << d << "] = " << loc << "(" << dims[d].nodes << ", " << dims[d].count << ", " << dims[d].arg << ", "
+        << (dims[d].sq ? 1 : 0) << ", &i[" << d << "]);\n";
+      s << "  j[" << d << "] = " << dims[d].count << " > 1 ? i[" << d << "] + 1 : i[" << d << "];\n";
+    }
+    const std::function<std::string(std::size_t, std::string)> term = [&](std::size_t d, std::string idx) {
+      if (d == dims.size()) return prefix + "_" + name + idx;
+      const std::string w = "w[" + std::to_string(d) + "]";
+      return "((1.0f - " + w + ") * " + term(d + 1, idx + "[i[" + std::to_string(d) + "]]") + " + " + w + " * " +
+             term(d + 1, idx + "[j[" + std::to_string(d) + "]]") + ")";
+    };
+    s << "  return " << term(0, "") << ";\n}\n\n";
+  };
+  std::vector<LookupAxis> e_dims = param_axes;
+  e_dims.push_back(mu_axis);
+  lookup("E", e_dims, "E at (mu, parameters)");
+  lookup("E_avg", param_axes, "E_avg at the parameters");
+  lookup("ms_norm", param_axes, "ms_norm at the parameters");
+  if (t.f0_axis >= 0) lookup("F_ms", param_axes, "F_ms at the parameters");
   s << "#undef " << upper << "_UNUSED\n\n#endif /* " << guard << " */\n";
   WriteFileAtomic(path, s.str());
 }

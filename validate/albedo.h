@@ -104,6 +104,12 @@ struct Axis {
   std::vector<double> weights;  // Gauss weights over the axis range in the value coordinate (kGauss)
 };
 
+// "total", "reflected" or "transmitted" (the part of a transmitting model's
+// scattered power a table holds); throws ModelError naming the choices.
+AlbedoQuadratureOptions::Part ParsePart(const std::string& text);
+// The names ParsePart takes, in the order of the Part enumeration.
+std::vector<std::string> PartNames();
+
 // Parses "mu:32,alpha:32,f0:8" or "alpha:16:0.001:1" (name:count[:lower:upper]).
 std::vector<AxisSpec> ParseAxes(const std::string& text);
 
@@ -125,7 +131,10 @@ struct AlbedoTableRequest {
 struct AlbedoTable {
   std::string model;
   std::vector<double> base_params;  // fixed parameter values (packed)
-  std::string params_text;          // the same as name=value,...
+  std::string params_text;          // the parameters held fixed (not on an axis) as name=value,...
+  // What a transmitting model's entries hold: "E_R", "E_T" or "E_R+E_T"
+  // (AlbedoQuadratureOptions::part); empty for other models (E).
+  std::string part;
   Axis mu;
   std::vector<Axis> params;  // one or two
   // E[(i1 * n2 + i2) * n_mu + i_mu], n2 = 1 when there is one parameter axis

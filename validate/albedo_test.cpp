@@ -5,6 +5,7 @@
 #include <ImfFloatVectorAttribute.h>
 #include <ImfFrameBuffer.h>
 #include <ImfHeader.h>
+#include <ImfChannelList.h>
 #include <ImfInputPart.h>
 #include <ImfMultiPartInputFile.h>
 #include <ImfStringAttribute.h>
@@ -306,6 +307,9 @@ TEST(AlbedoOutput, ExrStoresFloatImagesAndNodeAttributes) {
   ASSERT_EQ(mu->value().size(), 4u);
   ASSERT_EQ(alpha->value().size(), 3u);
   EXPECT_EQ(h.findTypedAttribute<Imf::StringAttribute>("brdfkit.model")->value(), "ggx");
+  // Only the parameters held fixed: alpha is an axis.
+  EXPECT_EQ(h.findTypedAttribute<Imf::StringAttribute>("brdfkit.params")->value(), "f0=1:1:1");
+  EXPECT_NE(h.channels().findChannel("Y"), nullptr);  // a grey image to texture loaders
   const auto dw = h.dataWindow();
   const int w = dw.max.x - dw.min.x + 1, hgt = dw.max.y - dw.min.y + 1;
   ASSERT_EQ(w, 4);
@@ -313,7 +317,7 @@ TEST(AlbedoOutput, ExrStoresFloatImagesAndNodeAttributes) {
   std::vector<float> px(w * hgt);
   Imf::InputPart part(in, 0);
   Imf::FrameBuffer fb;
-  fb.insert("E", Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(px.data()), sizeof(float), sizeof(float) * w));
+  fb.insert("Y", Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(px.data()), sizeof(float), sizeof(float) * w));
   part.setFrameBuffer(fb);
   part.readPixels(dw.min.y, dw.max.y);
   for (int r = 0; r < hgt; ++r)

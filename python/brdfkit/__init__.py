@@ -67,7 +67,7 @@ def check(model, params=None, *, sampling=True, samples=100000, random_pairs=400
 
 
 def albedo_table(model, params=None, *, axes="mu:32,alpha:32:0.001:1", nodes="uniform", tolerance=1e-6,
-                 accept_error=None, channel=0, threads=0):
+                 accept_error=None, channel=0, part="total", threads=0):
     """Directional albedo table E(mu, p), E_avg(p) and the Kulla-Conty terms.
 
     As ``brdfkit albedo --json``; the tables are numpy arrays.
@@ -88,20 +88,22 @@ def albedo_table(model, params=None, *, axes="mu:32,alpha:32:0.001:1", nodes="un
         Accept entries whose error estimate is up to this instead.
     channel : int
         RGB channel tabulated.
+    part : {"total", "reflected", "transmitted"}
+        For a transmitting model: E_R + E_T, E_R or E_T (other models: E).
     threads : int
         Threads (0: every core).
 
     Returns
     -------
     dict
-        model, params, mu, axes (name, nodes), E (n1 [x n2] x n_mu, mu
+        model, params (the fixed ones), part, mu, axes (name, nodes), E (n1 [x n2] x n_mu, mu
         fastest), E_avg, ms_norm, max_error, limit_error, seconds, and
         with an f0 axis F_avg, E1, E1_avg, F_ms.
     """
     import numpy as np
 
     t = _brdfkit._albedo_table(model, params, axes, nodes, tolerance, 0.0 if accept_error is None else accept_error,
-                               channel, threads)
+                               channel, part, threads)
     for key in ("mu", "E", "E_avg", "ms_norm", "F_avg", "E1", "E1_avg", "F_ms"):
         if key in t:
             t[key] = np.asarray(t[key], dtype=float)

@@ -71,7 +71,7 @@ def check(model: AnyModel, params: Params = None, *, sampling: bool = True, samp
 
 def albedo_table(model: Union[Model, str, PythonModel], params: Params = None, *, axes: str = "mu:32,alpha:32:0.001:1",
                  nodes: str = "uniform", tolerance: float = 1e-6, accept_error: Optional[float] = None,
-                 channel: int = 0, threads: int = 0) -> dict[str, Any]:
+                 channel: int = 0, part: str = "total", threads: int = 0) -> dict[str, Any]:
     """Albedo tables, as ``brdfkit albedo --json`` (tables as numpy arrays)."""
 
 def synth(model: AnyModel, params: Params = None, *, instrument: Union[None, PathArg, dict] = None,

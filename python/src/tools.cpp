@@ -50,7 +50,8 @@ py::dict Check(const py::object& model, const py::object& params, bool sampling,
 }
 
 py::dict AlbedoTableFn(const py::object& model, const py::object& params, const std::string& axes,
-                       const std::string& nodes, double tolerance, double accept_error, int channel, int threads) {
+                       const std::string& nodes, double tolerance, double accept_error, int channel,
+                       const std::string& part, int threads) {
   const ToolModel m = ToolModelArgument(model, params);
   if (nodes != "uniform" && nodes != "gauss")
     throw ArgumentError("nodes must be 'uniform' or 'gauss' (got '" + nodes + "')");
@@ -61,6 +62,7 @@ py::dict AlbedoTableFn(const py::object& model, const py::object& params, const 
   req.axes = validate::ParseAxes(axes);
   req.rule = nodes == "gauss" ? validate::NodeRule::kGauss : validate::NodeRule::kUniform;
   req.quadrature.abs_tolerance = tolerance;
+  req.quadrature.part = validate::ParsePart(part);
   req.channel = channel;
   validate::AlbedoTable t;
   RunTool(m, threads, [&](const CancelToken& token) {
@@ -375,7 +377,7 @@ void BindTools(py::module_& m) {
   m.def("_check", &Check, py::arg("model"), py::arg("params"), py::arg("sampling"), py::arg("samples"),
         py::arg("random_pairs"), py::arg("seed"), py::arg("threads"));
   m.def("_albedo_table", &AlbedoTableFn, py::arg("model"), py::arg("params"), py::arg("axes"), py::arg("nodes"),
-        py::arg("tolerance"), py::arg("accept_error"), py::arg("channel"), py::arg("threads"));
+        py::arg("tolerance"), py::arg("accept_error"), py::arg("channel"), py::arg("part"), py::arg("threads"));
   m.def("_synth", &Synth, py::arg("model"), py::arg("params"), py::arg("instrument"), py::arg("seed"),
         py::arg("out"), py::arg("threads"));
   m.def("_fit", &Fit, py::arg("model"), py::arg("data"), py::arg("wo"), py::arg("f"), py::arg("sigma"),

@@ -193,3 +193,12 @@ def test_threads_argument_gives_the_same_table():
     a = brdfkit.albedo_table("ggx", axes="mu:4,alpha:2:0.2:0.5", threads=1)
     b = brdfkit.albedo_table("ggx", axes="mu:4,alpha:2:0.2:0.5", threads=2)
     np.testing.assert_array_equal(a["E"], b["E"])
+
+
+def test_albedo_table_part_of_a_glass():
+    t = brdfkit.albedo_table("ggx_glass", {"alpha": 0.3}, axes="mu:2:0.8:1,eta:1:1.5:1.5", part="reflected",
+                             tolerance=1e-5, threads=1)
+    assert t["part"] == "E_R" and t["params"] == "alpha=0.3"
+    assert abs(t["E"][-1] - 0.04) < 5e-3  # normal incidence: about the Fresnel reflectance
+    with pytest.raises(ValueError, match="part 'both'"):
+        brdfkit.albedo_table("ggx_glass", axes="mu:2,eta:1:1.5:1.5", part="both")
