@@ -251,7 +251,7 @@ TEST(Run, MalformedScenesAreRejectedBeforeAnyWork) {
   check_table["materials"]["tab"] = {{"table", "t.csv"}};
   check_table["tasks"][5]["materials"] = json::array({"tab"});
   json bad_axis = SmallScene();
-  bad_axis["tasks"][0]["axes"] = "mu:8,roughness:4";
+  bad_axis["tasks"][0]["axes"] = "mu:8,sigma:4";
   json bad_data = SmallScene();
   bad_data["tasks"][3]["data"] = "ggx_table";
   json bad_param = SmallScene();
@@ -268,7 +268,7 @@ TEST(Run, MalformedScenesAreRejectedBeforeAnyWork) {
       {"wrong_type", wrong_type.dump(2), "tasks[0].axes: expected a string"},
       {"missing_file", missing_file.dump(2), "materials.measured.merl: file"},
       {"check_table", check_table.dump(2), "tasks[5].materials[0]"},
-      {"bad_axis", bad_axis.dump(2), "tasks[0].axes: 'roughness' is not a parameter"},
+      {"bad_axis", bad_axis.dump(2), "tasks[0].axes: axis 'sigma' is not a parameter"},
       {"bad_data", bad_data.dump(2), "tasks[3].data"},
       {"bad_param", bad_param.dump(2), "materials.plastic.params"},
       {"typo_model", typo_model.dump(2), "tasks[4].model"},

@@ -332,11 +332,7 @@ void AlbedoTask::Parse(SceneReader& r, const Scene& /*scene*/) {
     if (axes.empty() || axes[0].name != "mu") throw std::runtime_error("the first axis must be mu:N");
     if (axes.size() < 2 || axes.size() > 3)
       throw std::runtime_error("give mu and one or two parameters, e.g. mu:32,alpha:32");
-    for (std::size_t i = 1; i < axes.size(); ++i) {
-      bool found = false;
-      for (const ParamInfo& p : model.Info().params) found = found || p.name == axes[i].name;
-      if (!found) throw std::runtime_error("'" + axes[i].name + "' is not a parameter of " + model.Spec());
-    }
+    for (std::size_t i = 1; i < axes.size(); ++i) validate::AxisParameter(model.Info(), axes[i].name);
   } catch (const std::exception& e) {
     r.FailKey("axes", e.what());
   }

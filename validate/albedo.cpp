@@ -123,6 +123,19 @@ AlbedoValue AverageAlbedo(const Bxdf<double>& bxdf, const double* p, const LobeS
 
 // --- tables ----------------------------------------------------------------
 
+std::size_t AxisParameter(const ModelInfo& info, const std::string& axis_name) {
+  const std::string target = axis_name == "roughness" ? "alpha" : axis_name;
+  for (std::size_t i = 0; i < info.params.size(); ++i)
+    if (info.params[i].name == target) return i;
+  std::string known;
+  for (const auto& p : info.params) known += (known.empty() ? "" : ", ") + p.name;
+  if (axis_name == "roughness")
+    throw ModelError("axis 'roughness' sets alpha = roughness^2, and model '" + info.name +
+                     "' has no parameter alpha (parameters: " + (known.empty() ? "none" : known) + ")");
+  throw ModelError("axis '" + axis_name + "' is not a parameter of model '" + info.name + "' (parameters: " +
+                   (known.empty() ? "none" : known) + ")");
+}
+
 std::vector<std::string> PartNames() { return {"total", "reflected", "transmitted"}; }
 
 AlbedoQuadratureOptions::Part ParsePart(const std::string& text) {
@@ -195,6 +208,8 @@ void MakeNodes(Axis& axis, int count, double lo, double hi, NodeRule rule) {
 }
 
 void SetParam(const ModelInfo& info, const Axis& axis, double value, std::vector<double>& packed) {
+  // Roughness 0 (renderers' first node) is the smoothest alpha the model takes.
+  if (axis.squared) value = std::max(value * value, info.params[axis.param_index].lower);
   const std::size_t off = info.Offset(axis.param_index);
   const int n = info.params[axis.param_index].colour ? 3 : 1;
   for (int c = 0; c < n; ++c) packed[off + c] = value;
@@ -233,29 +248,26 @@ AlbedoTable BuildAlbedoTable(const Bxdf<double>& model, const std::string& spec,
     const AxisSpec& a = req.axes[k];
     Axis axis;
     axis.name = a.name;
-    std::size_t index = info.params.size();
-    for (std::size_t i = 0; i < info.params.size(); ++i)
-      if (info.params[i].name == a.name) index = i;
-    if (index == info.params.size()) {
-      std::string known;
-      for (const auto& p : info.params) known += (known.empty() ? "" : ", ") + p.name;
-      throw ModelError("axis '" + a.name + "' is not a parameter of model '" + info.name + "' (parameters: " +
-                       (known.empty() ? "none" : known) + ")");
-    }
+    const std::size_t index = AxisParameter(info, a.name);
     for (const Axis& prev : t.params)
-      if (prev.name == a.name) throw ModelError("axis '" + a.name + "' is given twice");
+      if (prev.param_index == index)
+        throw ModelError("axis '" + a.name + "' sets " + info.params[index].name + ", which another axis sets");
     const ParamInfo& pi = info.params[index];
     axis.param_index = index;
-    axis.sqrt_spacing = pi.scale == ParamInfo::Scale::kLog;
-    double lo = pi.lower, hi = pi.upper;
+    axis.squared = a.name == "roughness";
+    axis.sqrt_spacing = !axis.squared && pi.scale == ParamInfo::Scale::kLog;
+    // A roughness axis runs over sqrt of alpha's range, and may start at 0.
+    const double lower = axis.squared ? 0.0 : pi.lower;
+    double lo = axis.squared ? std::sqrt(pi.lower) : pi.lower, hi = axis.squared ? std::sqrt(pi.upper) : pi.upper;
     if (a.lower != 0 || a.upper != 0) {
       lo = a.lower;
       hi = a.upper;
     }
-    if (lo < pi.lower || hi > pi.upper)
+    if (lo < lower || (axis.squared ? hi * hi : hi) > pi.upper)
       throw ModelError("axis '" + a.name + "': range [" + FormatDouble(lo) + ", " + FormatDouble(hi) +
-                       "] is outside the parameter's range [" + FormatDouble(pi.lower) + ", " +
-                       FormatDouble(pi.upper) + "]");
+                       "] is outside the " + (axis.squared ? "roughness" : "parameter's") + " range [" +
+                       FormatDouble(lower) + ", " + FormatDouble(axis.squared ? std::sqrt(pi.upper) : pi.upper) +
+                       "]");
     MakeNodes(axis, a.count, lo, hi, req.rule);
     if (k == 1 && (req.slice_begin != 0 || req.slice_end != static_cast<std::size_t>(-1))) {
       const std::size_t n = axis.nodes.size(), end = std::min(req.slice_end, n);
@@ -755,7 +767,7 @@ double AlbedoLookup::Interp1(const std::vector<double>& coords, double c, std::s
 
 double AlbedoLookup::E(double mu, double p) const {
   std::size_t ip;
-  const double wp = Interp1(p_coord_, t_.params[0].sqrt_spacing ? std::sqrt(std::max(p, 0.0)) : p, ip);
+  const double wp = Interp1(p_coord_, Coordinate(p), ip);
   // Cubic Lagrange in mu through the four nodes around mu.
   const std::size_t n = t_.n_mu();
   std::size_t im;
@@ -777,7 +789,7 @@ double AlbedoLookup::E(double mu, double p) const {
 
 double AlbedoLookup::EAvg(double p) const {
   std::size_t ip;
-  const double wp = Interp1(p_coord_, t_.params[0].sqrt_spacing ? std::sqrt(std::max(p, 0.0)) : p, ip);
+  const double wp = Interp1(p_coord_, Coordinate(p), ip);
   return p_coord_.size() == 1 ? t_.E_avg[0] : (1 - wp) * t_.E_avg[ip] + wp * t_.E_avg[ip + 1];
 }
 

@@ -23,6 +23,8 @@
 // AlbedoTable::limit_error reports |E(mu_0) - E(10 mu_0)|.
 #pragma once
 
+#include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <functional>
 #include <string>
@@ -91,7 +93,9 @@ enum class NodeRule {
 };
 
 struct AxisSpec {
-  std::string name;  // "mu" or a scalar (or colour, all channels together) model parameter
+  // "mu", a scalar (or colour, all channels together) model parameter, or
+  // "roughness" for a model with an alpha parameter (alpha = roughness^2).
+  std::string name;
   int count = 0;
   double lower = 0, upper = 0;  // range; lower == upper == 0 means the parameter's bounds
 };
@@ -100,9 +104,16 @@ struct Axis {
   std::string name;
   std::size_t param_index = 0;  // into ModelInfo::params (unused for mu)
   bool sqrt_spacing = false;    // nodes uniform in sqrt(value)
+  // A "roughness" axis: nodes are roughness r, uniform in r, and the model's
+  // alpha parameter (param_index) is r^2 (at least alpha's lower bound).
+  bool squared = false;
   std::vector<double> nodes;
   std::vector<double> weights;  // Gauss weights over the axis range in the value coordinate (kGauss)
 };
+
+// The model parameter an axis sets: its index in info.params ("roughness"
+// sets "alpha"); throws ModelError naming the model's parameters.
+std::size_t AxisParameter(const ModelInfo& info, const std::string& axis_name);
 
 // "total", "reflected" or "transmitted" (the part of a transmitting model's
 // scattered power a table holds); throws ModelError naming the choices.
@@ -212,6 +223,13 @@ class AlbedoLookup {
 
  private:
   double Interp1(const std::vector<double>& coords, double c, std::size_t& i0) const;
+  // The parameter axis's node coordinate of a model parameter value p:
+  // sqrt(p) for a roughness axis (nodes r, alpha = r^2) or one spaced in
+  // sqrt(p), p otherwise.
+  double Coordinate(double p) const {
+    const Axis& a = t_.params[0];
+    return a.sqrt_spacing || a.squared ? std::sqrt(std::max(p, 0.0)) : p;
+  }
   AlbedoTable t_;
   std::vector<double> mu_coord_, p_coord_;
 };

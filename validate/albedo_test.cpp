@@ -155,6 +155,30 @@ TEST(AlbedoTable, GlassEntriesSplitIntoReflectedAndTransmitted) {
     }
 }
 
+// A roughness axis (renderers' convention, alpha = roughness^2) holds the
+// same entries as the alpha axis spaced in sqrt(alpha) over the squared
+// range; roughness 0 is the smoothest alpha the model takes (1e-7 for GGX),
+// where E at normal incidence is F = 1.
+TEST(AlbedoTable, RoughnessAxisIsAlphaSquared) {
+  const AlbedoTable r = Table("ggx", "f0=1", "mu:5,roughness:3:0.5:1");
+  const AlbedoTable a = Table("ggx", "f0=1", "mu:5,alpha:3:0.25:1");
+  EXPECT_EQ(r.params[0].name, "roughness");
+  EXPECT_EQ(r.params[0].nodes, (std::vector<double>{0.5, 0.75, 1.0}));
+  ASSERT_EQ(r.E.size(), a.E.size());
+  for (std::size_t k = 0; k < r.E.size(); ++k) EXPECT_NEAR(r.E[k], a.E[k], 1e-12) << k;
+  for (std::size_t k = 0; k < r.E_avg.size(); ++k) EXPECT_NEAR(r.E_avg[k], a.E_avg[k], 1e-12) << k;
+  EXPECT_EQ(r.params_text, "f0=1:1:1");
+  // The compensation lookup takes alpha and finds it on the roughness nodes.
+  const AlbedoLookup lr(r), la(a);
+  for (double alpha : {0.3, 0.5625, 0.8}) EXPECT_NEAR(lr.EAvg(alpha), la.EAvg(alpha), 1e-12) << alpha;
+  const AlbedoTable s = Table("ggx", "f0=1", "mu:3:0.5:1,roughness:2:0:0.1");
+  EXPECT_EQ(s.params[0].nodes[0], 0.0);
+  EXPECT_NEAR(s.at(2, 0), 1.0, 1e-6);
+  EXPECT_THROW(Table("lambert", "", "mu:3,roughness:2"), ModelError);
+  EXPECT_THROW(Table("ggx", "", "mu:3,roughness:2:0:1.5"), ModelError);
+  EXPECT_THROW(Table("ggx", "", "mu:3,roughness:2,alpha:2"), ModelError);
+}
+
 TEST(AlbedoTable, LambertIsItsAlbedoEverywhere) {
   const AlbedoTable t = Table("lambert", "", "mu:5,albedo:3");
   ASSERT_EQ(t.n1(), 3u);
@@ -358,7 +382,7 @@ TEST(AlbedoTable, RejectsBadAxes) {
   EXPECT_THROW(ParseAxes("mu:0"), ModelError);
   EXPECT_THROW(ParseAxes("mu:4:1"), ModelError);
   EXPECT_THROW(ParseAxes("alpha:4:1:0.5"), ModelError);
-  EXPECT_THROW(Table("ggx", "", "mu:4,roughness:4"), ModelError);
+  EXPECT_THROW(Table("ggx", "", "mu:4,sigma:4"), ModelError);
   EXPECT_THROW(Table("ggx", "", "alpha:4,mu:4"), ModelError);
   EXPECT_THROW(Table("ggx", "", "mu:4,alpha:4:0:1"), ModelError);  // alpha below its bound
   EXPECT_THROW(Table("ggx", "", "mu:4,alpha:4,alpha:3"), ModelError);

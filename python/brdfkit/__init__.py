@@ -78,7 +78,8 @@ def albedo_table(model, params=None, *, axes="mu:32,alpha:32:0.001:1", nodes="un
     params : dict or str, optional
         Values of the parameters that are not axes.
     axes : str
-        ``mu:N`` then one or two parameters ``name:count[:lower:upper]``.
+        ``mu:N`` then one or two parameters ``name:count[:lower:upper]``;
+        ``roughness`` sets ``alpha = roughness**2``.
     nodes : {"uniform", "gauss"}
     tolerance : float
         Absolute error target per entry: the table's contract. A table with
