@@ -531,6 +531,38 @@ void GeometricBreaks(double width, double limit, std::vector<double>& out) {
   for (double x = width / 4; x < limit; x *= 4) out.push_back(x);
 }
 
+// The directions of a quadrature rule's nodes, gathered for one EvalBatch
+// call with a fixed partner direction, and their Jacobians; nodes without a
+// direction (outside the integration domain) stay zero.
+class NodeBatch {
+ public:
+  void Clear() {
+    rows_.clear();
+    at_.clear();
+    jacobian_.clear();
+  }
+  void Add(std::size_t node, const Vector3d& dir, double jacobian) {
+    rows_.insert(rows_.end(), {dir.x(), dir.y(), dir.z()});
+    at_.push_back(node);
+    jacobian_.push_back(jacobian);
+  }
+  // nodes[k].value = f_r * jacobian for every added node: f_r(dir, fixed) or,
+  // with fixed_first, f_r(fixed, dir).
+  void Evaluate(const Bxdf<double>& bxdf, const double* p, const Vector3d& fixed, bool fixed_first,
+                QuadValue* nodes) {
+    if (at_.empty()) return;
+    values_.resize(rows_.size());
+    if (fixed_first) bxdf.EvalBatch(p, fixed.data(), 0, rows_.data(), 3, at_.size(), values_.data());
+    else bxdf.EvalBatch(p, rows_.data(), 3, fixed.data(), 0, at_.size(), values_.data());
+    for (std::size_t j = 0; j < at_.size(); ++j)
+      nodes[at_[j]].value = Array3d(values_[3 * j], values_[3 * j + 1], values_[3 * j + 2]) * jacobian_[j];
+  }
+
+ private:
+  std::vector<double> rows_, values_, jacobian_;
+  std::vector<std::size_t> at_;
+};
+
 // Directional albedo over the half vector wm = (theta_m, phi_m), dwi = 4
 // (wo.wm) dwm (Walter 2007 eq. 14): a specular lobe of any width sits at
 // wm = z for every wo, and the horizon wi.z = 0 is the exact curve
@@ -586,8 +618,7 @@ AdaptiveResult AdaptiveHalfVector(const Bxdf<double>& bxdf, const double* p, con
     const double per_inner = inner_calls > 0 ? double(evals) / double(inner_calls) : 15.0;
     return double(evals) + 30 * per_inner > double(o.budget);
   };
-  std::vector<double> rows, values, jacobian;
-  std::vector<std::size_t> at;
+  NodeBatch batch;
   const auto inner = [&](double phi) -> QuadValue {
     ++inner_calls;
     const double tmax = theta_max(phi);
@@ -597,9 +628,7 @@ AdaptiveResult AdaptiveHalfVector(const Bxdf<double>& bxdf, const double* p, con
     // one Python call for a model defined in Python).
     const auto g = [&](const double* ts, std::size_t n, QuadValue* nodes) {
       evals += static_cast<std::int64_t>(n);
-      rows.clear();
-      at.clear();
-      jacobian.clear();
+      batch.Clear();
       for (std::size_t k = 0; k < n; ++k) {
         nodes[k] = QuadValue{};
         const double t = ts[k], st = std::sin(t), ct = std::cos(t);
@@ -610,15 +639,9 @@ AdaptiveResult AdaptiveHalfVector(const Bxdf<double>& bxdf, const double* p, con
         if (!(wi_z > 0) || !(o_dot_m > 0)) continue;
         Vector3d wi = 2 * o_dot_m * wm - wo;
         wi.z() = wi_z;
-        rows.insert(rows.end(), {wi.x(), wi.y(), wi.z()});
-        at.push_back(k);
-        jacobian.push_back(wi_z * 4 * o_dot_m * st);
+        batch.Add(k, wi, wi_z * 4 * o_dot_m * st);
       }
-      if (at.empty()) return;
-      values.resize(3 * at.size());
-      bxdf.EvalBatch(p, rows.data(), 3, wo.data(), 0, at.size(), values.data());
-      for (std::size_t j = 0; j < at.size(); ++j)
-        nodes[at[j]].value = Array3d(values[3 * j], values[3 * j + 1], values[3 * j + 2]) * jacobian[j];
+      batch.Evaluate(bxdf, p, wo, false, nodes);
     };
     std::vector<double> inner_breaks;
     GeometricBreaks(w, tmax, inner_breaks);
@@ -926,8 +949,7 @@ AdaptiveResult AdaptiveRefracted(const Bxdf<double>& bxdf, const double* p, cons
     return double(evals) + 30 * per_inner > double(o.budget);
   };
   const double inner_abs = o.abs_tolerance / (4 * kPi), inner_rel = 0.5 * o.rel_tolerance;
-  std::vector<double> rows, values, jacobian;
-  std::vector<std::size_t> at;
+  NodeBatch batch;
   const auto inner = [&](double phi) -> QuadValue {
     ++inner_calls;
     const double cp = std::cos(phi), ca = std::cos(phi + phi_w), sa = std::sin(phi + phi_w);
@@ -935,9 +957,7 @@ AdaptiveResult AdaptiveRefracted(const Bxdf<double>& bxdf, const double* p, cons
     const double tmax = cp >= 0 ? kHalfPi : std::atan2(mu, -sin_w * cp);
     const auto g = [&](const double* ts, std::size_t n, QuadValue* nodes) {
       evals += static_cast<std::int64_t>(n);
-      rows.clear();
-      at.clear();
-      jacobian.clear();
+      batch.Clear();
       for (std::size_t j = 0; j < n; ++j) {
         nodes[j] = QuadValue{};
         const double st = std::sin(ts[j]), ct = std::cos(ts[j]);
@@ -951,16 +971,11 @@ AdaptiveResult AdaptiveRefracted(const Bxdf<double>& bxdf, const double* p, cons
         if (!(t.z() < 0)) continue;
         const double den = k * c - ct_t;  // k (w.m) + t.m
         if (!(den != 0)) continue;
-        jacobian.push_back(-t.z() * den * den / ct_t * st);
+        const double jacobian = -t.z() * den * den / ct_t * st;
         if (below) t.z() = -t.z();  // the other side of the actual w
-        rows.insert(rows.end(), {t.x(), t.y(), t.z()});
-        at.push_back(j);
+        batch.Add(j, t, jacobian);
       }
-      if (at.empty()) return;
-      values.resize(3 * at.size());
-      bxdf.EvalBatch(p, w.data(), 0, rows.data(), 3, at.size(), values.data());
-      for (std::size_t j = 0; j < at.size(); ++j)
-        nodes[at[j]].value = Array3d(values[3 * j], values[3 * j + 1], values[3 * j + 2]) * jacobian[j];
+      batch.Evaluate(bxdf, p, w, true, nodes);
     };
     std::vector<double> inner_breaks;
     GeometricBreaks(wd, tmax, inner_breaks);
@@ -1013,12 +1028,8 @@ ScatteredEstimate ScatteredPower(const Bxdf<double>& bxdf, const double* params,
   if (!(bxdf.Kind() & LobeKind::kTransmission)) return out;
   // v on the other side of the surface for u in the upper hemisphere.
   const auto other = [below](const Vector3d& u) { return Vector3d(u.x(), u.y(), below ? u.z() : -u.z()); };
-  const auto g = [&](const Vector3d& u) -> Array3d { return bxdf.Eval(params, w, other(u)) * u.z(); };
   // Snell: n_w sin(theta_w) = n_v sin(theta_v), RelativeIndex(w, v) = n_w / n_v.
   const double k = bxdf.RelativeIndex(params, w, other(Vector3d::UnitZ()));
-  const double s2 = k * k * (1 - w.z() * w.z());
-  Vector3d peak = Vector3d::Zero();
-  if (s2 < 1) peak = Vector3d(-k * w.x(), -k * w.y(), std::sqrt(1 - s2));
   const LobeWidth lobe = bxdf.Width(params);
   // Near k = 1 the map m -> t collapses (every m refracts w straight on, the
   // Jacobian vanishes and f_r is a delta): the generic rule about the refracted peak takes over.
@@ -1031,6 +1042,10 @@ ScatteredEstimate ScatteredPower(const Bxdf<double>& bxdf, const double* params,
     out.transmitted.seconds = Seconds(t0);
     return out;
   }
+  const auto g = [&](const Vector3d& u) -> Array3d { return bxdf.Eval(params, w, other(u)) * u.z(); };
+  const double s2 = k * k * (1 - w.z() * w.z());
+  Vector3d peak = Vector3d::Zero();
+  if (s2 < 1) peak = Vector3d(-k * w.x(), -k * w.y(), std::sqrt(1 - s2));
   out.transmitted =
       IntegrateHemisphere(g, Method::kAdaptive, options, peak, lobe.Any() ? std::min(1.0, lobe.Min()) : 0.0);
   return out;
