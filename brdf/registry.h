@@ -56,6 +56,7 @@ using RegisteredModels = std::tuple<
     Utia,
     Astm,
     GgxGlass,
+    GgxGlassCorrelated,
     BeckmannGlass>;
 
 }  // namespace brdfkit

@@ -41,8 +41,12 @@
 // D: GGX (Walter 2007 eq. 33) or Beckmann (eq. 25), evaluated at the facet
 // normal h turned to the outside. G: separable Smith, G = G1(wi) G1(wo),
 // G1(w) = 1 / (1 + Lambda(w)) (Walter 2007 eq. 23 with Heitz 2014 eq. 43,
-// 83, 86); Lambda depends on w.z only through w.z^2, so it is the same seen
-// from either side. F: exact unpolarised dielectric Fresnel reflectance.
+// 83, 86), or height-correlated Smith, G = 1 / (1 + Lambda(wi) +
+// Lambda(wo)) for reflection and refraction alike (Heitz 2014 eq. 99 and
+// 102 with Lambda even in w.z; the form Blender Cycles' glass uses), each
+// zero unless the facet faces both directions from their sides; Lambda
+// depends on w.z only through w.z^2, so it is the same seen from either
+// side. F: exact unpolarised dielectric Fresnel reflectance.
 //
 // Sampling over the whole sphere: reflection is chosen with probability
 // P_R = F(|wo.z|, eta') clamped to [0.05, 0.95] (the Fresnel term at the
@@ -69,7 +73,7 @@
 namespace brdfkit {
 
 // Derived supplies kName and kSummary; Dist is GGX or Beckmann.
-template <typename Derived, MicrofacetDistribution Dist>
+template <typename Derived, MicrofacetDistribution Dist, SmithForm Smith = SmithForm::kSeparable>
 class RoughDielectricModel {
  public:
   explicit RoughDielectricModel(const Settings& = {}) {}
@@ -78,6 +82,8 @@ class RoughDielectricModel {
   static constexpr Slot kEta{"eta", 1};
   static constexpr std::array kSlots{kAlpha, kEta};
   static constexpr unsigned kKind = LobeKind::kGlossy | LobeKind::kTransmission;
+  static constexpr MicrofacetDistribution kDist = Dist;
+  static constexpr SmithForm kSmith = Smith;
   static constexpr bool kChannelsIndependent = true;
   LobeWidth Width(const double* p) const { return {At(p, kAlpha), At(p, kAlpha)}; }
 
@@ -90,7 +96,8 @@ class RoughDielectricModel {
     info.params.push_back({"eta", 0.2, 5.0, 1.5, false, "relative index eta_inside / eta_outside", S::kLinear});
     // Refraction obeys f(wi, wo) / eta_wo^2 = f(wo, wi) / eta_wi^2 instead.
     info.reciprocal = false;
-    // F <= 1 and the separable G <= the visible-normal measure.
+    // F <= 1 and G <= G1 of the light direction (both forms): the power
+    // scattered is at most the visible-normal measure.
     info.energy_conserving = true;
     return info;
   }
@@ -119,11 +126,26 @@ class RoughDielectricModel {
     else return T(1) / (T(1) + LambdaBeckmann(w, a, a));
   }
 
+  // Masking-shadowing of the pair about the facet h (Geometry has checked
+  // that h faces both directions from their sides).
+  template <typename T>
+  T G2(const T* p, const Vec3<T>& wi, const Vec3<T>& wo, const Vec3<T>& h) const {
+    if constexpr (Smith == SmithForm::kSeparable) {
+      return G1(p, wi, h) * G1(p, wo, h);
+    } else {
+      const T a = At(p, kAlpha);
+      if constexpr (Dist == MicrofacetDistribution::kGgx)
+        return T(1) / (T(1) + LambdaGgx(wi, a, a) + LambdaGgx(wo, a, a));
+      else
+        return T(1) / (T(1) + LambdaBeckmann(wi, a, a) + LambdaBeckmann(wo, a, a));
+    }
+  }
+
   template <typename T>
   Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const {
     const Pair<T> q = Geometry(p, wi, wo);
     if (!q.valid) return Rgb<T>::Constant(T(0));
-    const T dg = D(p, q.h) * G1(p, wi, q.h) * G1(p, wo, q.h);
+    const T dg = D(p, q.h) * G2(p, wi, wo, q.h);
     T value;
     if (q.reflect) {
       value = q.fresnel * dg / (T(4) * q.abs_ci * q.abs_co);
@@ -264,6 +286,15 @@ struct GgxGlass : RoughDielectricModel<GgxGlass, MicrofacetDistribution::kGgx> {
   static constexpr const char* kName = "ggx_glass";
   static constexpr const char* kSummary =
       "rough dielectric BSDF, GGX, separable Smith, exact Fresnel, reflection and refraction (Walter 2007)";
+};
+
+struct GgxGlassCorrelated
+    : RoughDielectricModel<GgxGlassCorrelated, MicrofacetDistribution::kGgx, SmithForm::kHeightCorrelated> {
+  using RoughDielectricModel::RoughDielectricModel;
+  static constexpr const char* kName = "ggx_glass_correlated";
+  static constexpr const char* kSummary =
+      "rough dielectric BSDF, GGX, height-correlated Smith (as Blender Cycles' glass), exact Fresnel, reflection "
+      "and refraction (Walter 2007, Heitz 2014)";
 };
 
 struct BeckmannGlass : RoughDielectricModel<BeckmannGlass, MicrofacetDistribution::kBeckmann> {

@@ -79,7 +79,7 @@ class RoughDielectricTest : public ::testing::Test {
   }
 };
 
-using Models = ::testing::Types<GgxGlass, BeckmannGlass>;
+using Models = ::testing::Types<GgxGlass, GgxGlassCorrelated, BeckmannGlass>;
 TYPED_TEST_SUITE(RoughDielectricTest, Models);
 
 Eigen::Vector3d Dir(double theta, double phi, bool inside) {
@@ -131,13 +131,15 @@ double Lambda(bool ggx, double alpha, double theta) {
 }
 
 // eta = 1: no reflection at all, for every roughness; as eta -> 1 the
-// refracted light concentrates on -wi with the power G1(wi) = 1 / (1 +
-// Lambda(wi)) that the separable Smith term lets through (-> 1 as alpha -> 0).
+// refracted light concentrates on -wi with the power G2 / G1(wi) that the
+// Smith term lets through (-> 1 as alpha -> 0): G1(wi) = 1 / (1 + Lambda)
+// separable, (1 + Lambda) / (1 + 2 Lambda) height-correlated.
 // The power int f(wi, wo) |wo.z| dwo is integrated over the facet normal h:
 // wo = wi refracted about h (Snell), dwo = (n_i wi.h + n_o wo.h)^2 /
 // (n_o^2 |wo.h|) dh (Walter 2007 eq. 17), smooth where the peak in wo is not.
 TYPED_TEST(RoughDielectricTest, IndexMatchedInterfaceTransmitsAll) {
-  const bool ggx = std::is_same_v<TypeParam, GgxGlass>;
+  const bool ggx = TypeParam::kDist == MicrofacetDistribution::kGgx;
+  const bool correlated = TypeParam::kSmith == SmithForm::kHeightCorrelated;
   std::mt19937_64 rng(4);
   for (double alpha : {0.05, 0.3, 1.0}) {
     const std::vector<double> p1 = {alpha, 1.0};
@@ -150,7 +152,8 @@ TYPED_TEST(RoughDielectricTest, IndexMatchedInterfaceTransmitsAll) {
     for (double theta : {0.0, 0.6, 1.2})
       for (bool inside : {false, true}) {
         const Eigen::Vector3d w = Dir(theta, 0.3, inside);
-        const double expected = 1 / (1 + (theta == 0 ? 0.0 : Lambda(ggx, alpha, theta)));
+        const double lambda = theta == 0 ? 0.0 : Lambda(ggx, alpha, theta);
+        const double expected = correlated ? (1 + lambda) / (1 + 2 * lambda) : 1 / (1 + lambda);
         double previous_error = 1;
         for (double d : {1e-2, 1e-3, 1e-4}) {
           const double eta = 1 + d, n_i = inside ? eta : 1.0, n_o = inside ? 1.0 : eta;

@@ -224,6 +224,75 @@ TEST(Cli, AlbedoHeadersCompileAsCAndCppAndMatchTheCsv) {
   }
 }
 
+// The renderers' table sets: Cycles' arrays and Filament's DFG_LUT (as a
+// header and as the .inc body Filament's DFG.cpp includes) compile as C and
+// C++ with -Wall -Wextra -Werror -pedantic and hold the JSON's values.
+TEST(Cli, PresetHeadersCompileAndHoldTheJsonValues) {
+  const fs::path dir = FreshDir("albedo-preset");
+  const std::string c = (dir / "cycles").string(), f = (dir / "dfg").string();
+  const CliRun rc = Brdfkit("albedo --preset cycles --tables table_ggx_Eavg,table_ggx_gen_schlick_s --header " + c +
+                            ".h --json");
+  ASSERT_EQ(rc.code, 0) << rc.out;
+  const auto jc = nlohmann::json::parse(rc.out.substr(0, rc.out.find('\n')));
+  const CliRun rf = Brdfkit("albedo --preset filament --filament-size 4 --header " + f + ".h --json");
+  ASSERT_EQ(rf.code, 0) << rf.out;
+  ASSERT_EQ(Brdfkit("albedo --preset filament --filament-size 4 --header " + f + ".inc").code, 0);
+  const auto jf = nlohmann::json::parse(rf.out.substr(0, rf.out.find('\n')));
+  ASSERT_EQ(jc["tables"].size(), 2u);
+  const std::string prog =
+      "#include <stdio.h>\n#include \"" + c + ".h\"\n#include \"" + f + ".h\"\n"
+      "static const uint16_t inc[] = {\n#include \"" + f + ".inc\"\n};\n"
+      "int main(void) {\n  unsigned i, bad = 0;\n"
+      "  for (i = 0; i < 32; ++i) printf(\"%.9g\\n\", (double)table_ggx_Eavg[i]);\n"
+      "  for (i = 0; i < 4096; ++i) printf(\"%.9g\\n\", (double)table_ggx_gen_schlick_s[i]);\n"
+      "  if (sizeof(inc) != DFG_LUT_SIZE * DFG_LUT_SIZE * 3 * sizeof(uint16_t)) ++bad;\n"
+      "  for (i = 0; i < DFG_LUT_SIZE * DFG_LUT_SIZE * 3; ++i) {\n"
+      "    if (inc[i] != DFG_LUT[i]) ++bad;\n    printf(\"%u\\n\", (unsigned)DFG_LUT[i]);\n  }\n"
+      "  return (int)bad;\n}\n";
+  WriteText(dir / "main.c", prog);
+  WriteText(dir / "main.cpp", prog);
+  std::vector<double> want;
+  for (const auto& t : jc["tables"])
+    for (const auto& v : t["value"]) want.push_back(v.get<double>());
+  const std::size_t n_float = want.size();
+  for (const auto& v : jf["tables"][0]["value"]) want.push_back(v.get<double>());
+  ASSERT_EQ(n_float, 32u + 4096u);
+  ASSERT_EQ(want.size(), n_float + 48u);
+  for (const std::string compiler : {"gcc -x c -std=c99", "g++ -x c++ -std=c++11", "clang -x c -std=c11",
+                                     "clang++ -x c++ -std=c++20"}) {
+    const bool cpp = compiler.find("++") != std::string::npos;
+    const std::string exe = (dir / "prog").string();
+    const CliRun cc = Shell(compiler + " -Wall -Wextra -Werror -pedantic " + (dir / (cpp ? "main.cpp" : "main.c")).string() +
+                            " -o " + exe);
+    ASSERT_EQ(cc.code, 0) << compiler << ":\n" << cc.out;
+    const CliRun out = Shell(exe);
+    ASSERT_EQ(out.code, 0) << compiler << ": the .inc body differs from the header's DFG_LUT";
+    std::istringstream got(out.out);
+    std::string line;
+    for (std::size_t k = 0; k < want.size(); ++k) {
+      ASSERT_TRUE(std::getline(got, line)) << "fewer values than the JSON";
+      if (k < n_float) {
+        EXPECT_NEAR(std::stod(line), want[k], 1e-7 * std::max(1.0, std::abs(want[k]))) << compiler << " " << k;
+      } else {
+        // IEEE half: sign, 5 exponent bits, 10 mantissa bits.
+        const unsigned h = std::stoul(line), e = (h >> 10) & 31u, m = h & 1023u;
+        const double v = (h & 0x8000u ? -1 : 1) * (e ? std::ldexp(1024.0 + m, int(e) - 25) : std::ldexp(double(m), -24));
+        EXPECT_NEAR(v, want[k], std::ldexp(std::abs(want[k]), -11) + std::ldexp(1.0, -25)) << compiler << " half " << k;
+      }
+    }
+  }
+  // A preset takes no model or axes; the sizes are checked.
+  const CliRun both = Brdfkit("albedo --preset cycles --model ggx");
+  EXPECT_EQ(both.code, 2) << both.out;
+  EXPECT_NE(both.out.find("--preset excludes --model"), std::string::npos) << both.out;
+  const CliRun small = Brdfkit("albedo --preset filament --filament-size 1");
+  EXPECT_NE(small.code, 0) << small.out;
+  EXPECT_NE(small.out.find("--filament-size"), std::string::npos) << small.out;
+  const CliRun table = Brdfkit("albedo --preset cycles --tables table_ggx_F");
+  EXPECT_NE(table.code, 0);
+  EXPECT_NE(table.out.find("table_ggx_F"), std::string::npos) << table.out;
+}
+
 // A table that misses its 1e-6 contract (alpha down to 1e-7 at grazing) is
 // not written: the entries are named, the exit code is 1. An explicit
 // --accept-error writes it.

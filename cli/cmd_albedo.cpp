@@ -9,6 +9,7 @@
 #include "cli/common.h"
 #include "cli/tasks.h"
 #include "validate/albedo.h"
+#include "validate/presets.h"
 
 namespace brdfkit::cli {
 
@@ -29,22 +30,45 @@ nlohmann::json AlbedoTableJson(const validate::AlbedoTable& t) {
   return j;
 }
 
+nlohmann::json PresetJson(const validate::Preset& p) {
+  nlohmann::json tables = nlohmann::json::array();
+  for (const validate::PresetTable& t : p.tables) {
+    nlohmann::json axes_j = nlohmann::json::array();
+    for (const validate::PresetAxis& a : t.axes)
+      axes_j.push_back({{"name", a.name}, {"nodes", a.coordinate}, {"evaluated", a.evaluated}});
+    tables.push_back({{"name", t.name}, {"definition", t.definition}, {"axes", axes_j}, {"channels", t.channels},
+                      {"value", t.value}, {"error", t.error}});
+  }
+  return {{"preset", p.name}, {"tables", tables}, {"max_error", p.max_error}, {"seconds", p.seconds}};
+}
+
 void RegisterAlbedo(CLI::App& app) {
   auto* cmd = app.add_subcommand(
       "albedo",
       "directional albedo tables E(mu, p) for renderers, E_avg(p) = 2 int E mu dmu, and the Kulla-Conty "
       "multiple-scattering compensation terms. The entry at mu = 0 holds the limit mu -> 0.");
   static ModelArgs margs;
-  static std::string axes, nodes = "uniform", csv, exr, header, prefix, part = "total";
+  static std::string axes, nodes = "uniform", csv, exr, header, prefix, part = "total", preset;
+  static int filament_size = 128;
+  static std::vector<std::string> preset_tables;
   static double tolerance = validate::AlbedoQuadratureOptions{}.abs_tolerance, accept_error = 0;
   static std::string slice;
   static int channel = 0, threads = 0;
   static bool json = false;
-  AddModelOptions(cmd, margs);
+  AddModelOptions(cmd, margs, false);
   cmd->add_option("--axes", axes,
                   "mu:N then one or two parameters, name:count[:lower:upper], e.g. mu:32,alpha:32 or "
-                  "mu:32,alpha:32,f0:8 (default range: the parameter's bounds)")
-      ->required();
+                  "mu:32,alpha:32,f0:8 (default range: the parameter's bounds)");
+  cmd->add_option("--preset", preset,
+                  "instead of --model and --axes: every table a renderer ships, on its nodes and in its layout: "
+                  "cycles (Blender Cycles' shader.tables: GGX, glass and generalised-Schlick tables), filament "
+                  "(Filament's DFG texture); default tolerance 1e-7. --header writes the renderer's arrays (a path "
+                  "ending in .inc: the bare array, as Filament's build includes it)")
+      ->check(CLI::IsMember(validate::PresetNames()));
+  cmd->add_option("--filament-size", filament_size, "texels per side of --preset filament's table (Filament: 128, 64 on mobile)")
+      ->check(CLI::Range(2, 4096));
+  cmd->add_option("--tables", preset_tables, "only these tables of --preset (array names, comma-separated)")
+      ->delimiter(',');
   cmd->add_option("--nodes", nodes,
                   "uniform: mu uniform on [0, 1], roughness (log-scale parameters) uniform in sqrt(p), others "
                   "uniform, ends included; gauss: Gauss-Legendre nodes in the same coordinates (ends excluded)")
@@ -73,7 +97,31 @@ void RegisterAlbedo(CLI::App& app) {
                   "(pieces of one table computed apart and joined along that axis)");
   cmd->add_option("--threads", threads, "threads (default 0: every core; more than the cores are capped)");
   cmd->add_flag("--json", json, "print the tables as JSON on stdout");
-  cmd->callback([] {
+  cmd->callback([cmd] {
+    if (!preset.empty()) {
+      if (!axes.empty() || !margs.model.empty())
+        throw UsageError("--preset excludes --model and --axes: a preset has its own models and axes");
+      validate::PresetOptions po;
+      po.abs_tolerance = cmd->count("--tolerance") ? tolerance : 1e-7;
+      po.filament_size = filament_size;
+      po.tables = preset_tables;
+      const tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
+                                      static_cast<std::size_t>(ThreadCount(threads)));
+      const validate::Preset p = validate::BuildPreset(preset, po);
+      const double accepted = std::max(accept_error, po.abs_tolerance);
+      const std::string misses = validate::DescribePresetMisses(p, accepted);
+      if (!misses.empty()) throw ResultError(misses + "\nNo table was written. Accept a looser table with --accept-error.");
+      if (!csv.empty()) validate::WritePresetCsv(p, csv);
+      if (!exr.empty()) validate::WritePresetExr(p, exr);
+      if (!header.empty()) validate::WritePresetHeader(p, header);
+      if (json) std::cout << PresetJson(p).dump() << std::endl;  // before the summary on stderr
+      std::size_t entries = 0;
+      for (const validate::PresetTable& t : p.tables) entries += t.value.size();
+      std::fprintf(stderr, "albedo --preset %s: %zu tables, %zu entries in %.2f s; largest error estimate %.2g\n",
+                   preset.c_str(), p.tables.size(), entries, p.seconds, p.max_error);
+      return;
+    }
+    if (margs.model.empty() || axes.empty()) throw UsageError("albedo needs --model and --axes (or --preset)");
     const LoadedModel m = LoadModel(margs);
     if (!prefix.empty()) {
       bool ident = !std::isdigit(static_cast<unsigned char>(prefix[0]));

@@ -59,7 +59,10 @@ AlbedoValue AlbedoAtMu(const Bxdf<double>& bxdf, const double* p, double mu, con
   mu = std::min(mu, 1.0);
   const Eigen::Vector3d wo(std::sqrt(std::max(0.0, (1 - mu) * (1 + mu))), 0, mu);
   if (bxdf.Kind() & LobeKind::kTransmission) {
-    const ScatteredEstimate e = ScatteredPower(bxdf, p, wo, o.Integrate(shape));
+    IntegrateOptions io = o.Integrate(shape);
+    // The total adds two estimates: each part gets half the tolerance.
+    if (o.part == AlbedoQuadratureOptions::Part::kTotal) io.abs_tolerance /= 2;
+    const ScatteredEstimate e = ScatteredPower(bxdf, p, wo, io);
     switch (o.part) {
       case AlbedoQuadratureOptions::Part::kReflected: return e.reflected;
       case AlbedoQuadratureOptions::Part::kTransmitted: return e.transmitted;
@@ -589,12 +592,6 @@ void WriteAlbedoExr(const AlbedoTable& t, const std::string& path) {
   file.Commit();
 }
 
-namespace {
-
-// A C float literal that reads back to float(v): "0.0f", "1.0f", "0.123456789f",
-// "1e-07f". Values below the smallest normal float are written as 0 (a
-// subnormal literal is diagnosed by some compilers); non-finite values have
-// no literal and are refused.
 std::string FloatLiteral(double v, const std::string& what) {
   if (!std::isfinite(v) || std::abs(v) > double(std::numeric_limits<float>::max()))
     throw ModelError("albedo header: " + what + " = " + FormatDouble(v) + " has no float literal");
@@ -606,7 +603,6 @@ std::string FloatLiteral(double v, const std::string& what) {
   return out + "f";
 }
 
-}  // namespace
 
 void WriteAlbedoHeader(const AlbedoTable& t, const std::string& path, const std::string& prefix) {
   std::string upper;

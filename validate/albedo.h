@@ -210,6 +210,11 @@ void WriteAlbedoExr(const AlbedoTable& table, const std::string& path);
 // C header (C89 and C++, include guard) with float arrays and node arrays;
 // every value is finite. Throws ModelError for a value with no float literal.
 void WriteAlbedoHeader(const AlbedoTable& table, const std::string& path, const std::string& symbol_prefix);
+// A C float literal that reads back to float(v): "0.0f", "1.0f",
+// "0.123456789f", "1e-07f". Values below the smallest normal float are
+// written as 0 (a subnormal literal is diagnosed by some compilers);
+// non-finite values have no literal and are refused (ModelError naming what).
+std::string FloatLiteral(double v, const std::string& what);
 
 // --- energy compensation -------------------------------------------------
 

@@ -563,6 +563,91 @@ class NodeBatch {
   std::vector<std::size_t> at_;
 };
 
+// Where w.m = c on the facet normals m = (theta, phi) about a fixed w =
+// (s, 0, mu) (phi measured from w's azimuth): w.m = r cos(theta - theta_0),
+// r = hypot(s cos(phi), mu), theta_0 = atan2(s cos(phi), mu). Inner
+// breakpoints: the thetas in (0, tmax) on that curve for one phi.
+void FacetKinkThetas(double s, double mu, double cp, double tmax, const std::vector<double>& kinks,
+                     std::vector<double>& out) {
+  const double a = s * cp, r = std::hypot(a, mu), t0 = std::atan2(a, mu);
+  for (double c : kinks) {
+    if (!(c < r)) continue;
+    const double dt = std::acos(c / r);
+    for (double tb : {t0 - dt, t0 + dt})
+      if (tb > 0 && tb < tmax) out.push_back(tb);
+  }
+}
+// Outer breakpoints: the phis in (0, phi_end) where the curve w.m = c
+// leaves the range of theta (r(phi) = c), a kink of the inner integral.
+void FacetKinkPhis(double s, double mu, double phi_end, const std::vector<double>& kinks, std::vector<double>& out) {
+  for (double c : kinks) {
+    if (!(c > mu) || !(s > 0)) continue;
+    const double x = std::sqrt(c * c - mu * mu) / s;
+    if (!(x < 1)) continue;
+    const double a = std::acos(x);
+    for (double phi : {a, kPi - a, kPi + a, 2 * kPi - a})
+      if (phi > 0 && phi < phi_end) out.push_back(phi);
+  }
+}
+
+// AdaptiveKronrod over [a, b] split at `breaks`, where the integrand may
+// behave like sqrt(|x - r|) on one side of the points `roots` (a Fresnel
+// reflectance reaching total internal reflection): each panel between
+// breakpoints that ends at a root is integrated in s in [0, 1] with x = x0 +
+// L w(s), w = s^2, 1 - (1 - s)^2 or 3 s^2 - 2 s^3 (a root at the left, the
+// right or both ends), which turns sqrt(x - r) into a smooth function of s.
+template <typename G, typename Stop>
+QuadValue KronrodWithRoots(G& g, double a, double b, std::vector<double> breaks, const std::vector<double>& roots,
+                           double abs_tol, double rel_tol, int max_splits, Stop&& stop) {
+  if (roots.empty()) return AdaptiveKronrod(g, a, b, std::move(breaks), abs_tol, rel_tol, max_splits, stop);
+  breaks.insert(breaks.end(), roots.begin(), roots.end());
+  std::sort(breaks.begin(), breaks.end());
+  std::vector<double> pts{a};
+  for (double x : breaks)
+    if (x > pts.back() && x < b) pts.push_back(x);
+  pts.push_back(b);
+  const std::size_t panels = pts.size() - 1;
+  const auto is_root = [&](double x) { return std::find(roots.begin(), roots.end(), x) != roots.end(); };
+  std::vector<int> kind(panels);  // bit 0: root at the left end, bit 1: at the right end
+  for (std::size_t i = 0; i < panels; ++i) kind[i] = (is_root(pts[i]) ? 1 : 0) | (is_root(pts[i + 1]) ? 2 : 0);
+  const auto map = [&](double sv, double& x, double& jac) {
+    const std::size_t i = std::min(panels - 1, static_cast<std::size_t>(std::max(0.0, std::floor(sv))));
+    const double t = sv - double(i), len = pts[i + 1] - pts[i];
+    double w = t, dw = 1;
+    if (kind[i] == 1) w = t * t, dw = 2 * t;
+    else if (kind[i] == 2) w = 1 - (1 - t) * (1 - t), dw = 2 * (1 - t);
+    else if (kind[i] == 3) w = t * t * (3 - 2 * t), dw = 6 * t * (1 - t);
+    x = pts[i] + len * w;
+    jac = len * dw;
+  };
+  std::vector<double> panel_breaks;
+  for (std::size_t i = 1; i < panels; ++i) panel_breaks.push_back(double(i));
+  if constexpr (QuadBatchIntegrand<G>) {
+    std::vector<double> xs, jacs;
+    auto warped = [&](const double* sv, std::size_t n, QuadValue* out) {
+      xs.resize(n);
+      jacs.resize(n);
+      for (std::size_t k = 0; k < n; ++k) map(sv[k], xs[k], jacs[k]);
+      g(xs.data(), n, out);
+      for (std::size_t k = 0; k < n; ++k) {
+        out[k].value *= jacs[k];
+        out[k].error *= jacs[k];
+      }
+    };
+    return AdaptiveKronrod(warped, 0.0, double(panels), std::move(panel_breaks), abs_tol, rel_tol, max_splits, stop);
+  } else {
+    auto warped = [&](double sv) {
+      double x, jac;
+      map(sv, x, jac);
+      QuadValue v = g(x);
+      v.value *= jac;
+      v.error *= jac;
+      return v;
+    };
+    return AdaptiveKronrod(warped, 0.0, double(panels), std::move(panel_breaks), abs_tol, rel_tol, max_splits, stop);
+  }
+}
+
 // Directional albedo over the half vector wm = (theta_m, phi_m), dwi = 4
 // (wo.wm) dwm (Walter 2007 eq. 14): a specular lobe of any width sits at
 // wm = z for every wo, and the horizon wi.z = 0 is the exact curve
@@ -601,12 +686,14 @@ AdaptiveResult AdaptiveHalfVector(const Bxdf<double>& bxdf, const double* p, con
       if (!half) breaks.push_back(1.5 * kPi - side * std::asin(s));
     }
   }
+  std::vector<double> phi_roots;
+  FacetKinkPhis(sin_o, mu_o, phi_end, o.facet_kinks, phi_roots);
   std::sort(breaks.begin(), breaks.end());
   breaks.erase(std::unique(breaks.begin(), breaks.end()), breaks.end());
   // The budget: refinement at either level stops when one more bisection
   // (30 evaluations, or 30 inner integrals) would pass it, keeping enough
   // for the inner integrals the outer rule's first pass still needs.
-  const std::int64_t first_pass = 15 * static_cast<std::int64_t>(breaks.size() + 1);
+  const std::int64_t first_pass = 15 * static_cast<std::int64_t>(breaks.size() + phi_roots.size() + 1);
   std::int64_t inner_min_cost = 15;
   const auto reserve = [&] { return std::max<std::int64_t>(0, first_pass - inner_calls) * inner_min_cost; };
   // Each inner integral gets a share of the tolerance such that their
@@ -649,11 +736,13 @@ AdaptiveResult AdaptiveHalfVector(const Bxdf<double>& bxdf, const double* p, con
     // kink of models with max or min(cos theta_i, cos theta_o) (as the
     // spherical rule's break at cos theta = mu_o).
     if (cp > 0) inner_breaks.push_back(std::atan2(sin_o * cp, mu_o));
-    inner_min_cost = 15 * static_cast<std::int64_t>(inner_breaks.size() + 1);
-    return AdaptiveKronrod(g, 0.0, tmax, std::move(inner_breaks), inner_abs, inner_rel, o.max_subdivisions,
-                           inner_spent);
+    std::vector<double> roots;
+    FacetKinkThetas(sin_o, mu_o, cp, tmax, o.facet_kinks, roots);
+    inner_min_cost = 15 * static_cast<std::int64_t>(inner_breaks.size() + roots.size() + 1);
+    return KronrodWithRoots(g, 0.0, tmax, std::move(inner_breaks), roots, inner_abs, inner_rel, o.max_subdivisions,
+                            inner_spent);
   };
-  const QuadValue v = AdaptiveKronrod(inner, 0.0, phi_end, std::move(breaks), o.abs_tolerance / factor,
+  const QuadValue v = KronrodWithRoots(inner, 0.0, phi_end, std::move(breaks), phi_roots, o.abs_tolerance / factor,
                                       o.rel_tolerance, o.max_subdivisions, outer_spent);
   out.value = v.value * factor;
   out.error = v.error * factor;
@@ -819,6 +908,13 @@ LobeShape EstimateLobeShape(const Bxdf<double>& bxdf, const double* p) {
     const Array3d a = bxdf.Eval(p, wi, wo), b = bxdf.Eval(p, wi_m, wo);
     const double scale = std::max(a.abs().maxCoeff(), b.abs().maxCoeff());
     if ((a - b).abs().maxCoeff() > 1e-12 * scale) shape.mirror_symmetric = false;
+    if (bxdf.Kind() & LobeKind::kTransmission) {
+      // Refraction pairs as well: wi on the other side.
+      const Vector3d below(wi.x(), wi.y(), -wi.z()), below_m(wi.x(), -wi.y(), -wi.z());
+      const Array3d c = bxdf.Eval(p, below, wo), d = bxdf.Eval(p, below_m, wo);
+      if ((c - d).abs().maxCoeff() > 1e-12 * std::max(c.abs().maxCoeff(), d.abs().maxCoeff()))
+        shape.mirror_symmetric = false;
+    }
   }
   return shape;
 }
@@ -932,7 +1028,11 @@ class LightSideView final : public Bxdf<double> {
 // on w's side. Both angles by adaptive Gauss-Kronrod, breakpoints at
 // multiples of the lobe width; the budget stops refinement of both levels.
 AdaptiveResult AdaptiveRefracted(const Bxdf<double>& bxdf, const double* p, const Vector3d& w, double k,
-                                 double width, const IntegrateOptions& o) {
+                                 const LobeShape& shape, const IntegrateOptions& o) {
+  const double width = std::min(1.0, shape.width);
+  // phi over [0, pi] only for a mirror-symmetric model with w in the xz plane.
+  const bool half = shape.mirror_symmetric && w.y() == 0;
+  const double phi_end = half ? kPi : 2 * kPi, factor = half ? 2.0 : 1.0;
   AdaptiveResult out;
   const bool below = w.z() < 0;
   const double mu = std::abs(w.z());
@@ -948,7 +1048,11 @@ AdaptiveResult AdaptiveRefracted(const Bxdf<double>& bxdf, const double* p, cons
     const double per_inner = inner_calls > 0 ? double(evals) / double(inner_calls) : 15.0;
     return double(evals) + 30 * per_inner > double(o.budget);
   };
-  const double inner_abs = o.abs_tolerance / (4 * kPi), inner_rel = 0.5 * o.rel_tolerance;
+  const double inner_abs = o.abs_tolerance / (2 * factor * phi_end), inner_rel = 0.5 * o.rel_tolerance;
+  // The onset of total internal reflection, w.m = sqrt(1 - 1 / k^2), where
+  // 1 - F falls to 0 like a square root.
+  std::vector<double> kinks = o.facet_kinks;
+  if (k > 1) kinks.push_back(std::sqrt(1 - 1 / (k * k)));
   NodeBatch batch;
   const auto inner = [&](double phi) -> QuadValue {
     ++inner_calls;
@@ -979,23 +1083,37 @@ AdaptiveResult AdaptiveRefracted(const Bxdf<double>& bxdf, const double* p, cons
     };
     std::vector<double> inner_breaks;
     GeometricBreaks(wd, tmax, inner_breaks);
+    std::vector<double> roots;
+    FacetKinkThetas(sin_w, mu, cp, tmax, kinks, roots);
     if (k > 1) {
-      // The onset of total internal reflection, w.m = sqrt(1 - 1 / k^2), where
-      // 1 - F falls to 0 like a square root: w.m = R cos(theta - theta_0).
-      const double a = sin_w * cp, r = std::hypot(a, mu), c_crit = std::sqrt(1 - 1 / (k * k));
-      if (c_crit < r) {
-        const double t0 = std::atan2(a, mu), dt = std::acos(c_crit / r);
-        for (double tb : {t0 - dt, t0 + dt})
-          if (tb > 0 && tb < tmax) inner_breaks.push_back(tb);
-      }
+      // Where t reaches the horizon, the cosine factor |t.z| ends at 0 with
+      // a kink: m ~ t + k w with t = (cos psi, sin psi, 0), so along the
+      // azimuth phi, tan(theta) = rho / (k mu) with rho (cos phi, sin phi)
+      // on the unit circle about (k sin_w, 0).
+      const double sp = std::sin(phi), disc = 1 - k * k * sin_w * sin_w * sp * sp;
+      if (disc >= 0)
+        for (double sign : {-1.0, 1.0}) {
+          const double rho = k * sin_w * cp + sign * std::sqrt(disc);
+          const double tb = std::atan2(rho, k * mu);
+          if (rho > 0 && tb < tmax) inner_breaks.push_back(tb);
+        }
     }
-    return AdaptiveKronrod(g, 0.0, tmax, std::move(inner_breaks), inner_abs, inner_rel, o.max_subdivisions,
-                           inner_spent);
+    return KronrodWithRoots(g, 0.0, tmax, std::move(inner_breaks), roots, inner_abs, inner_rel, o.max_subdivisions,
+                            inner_spent);
   };
-  const QuadValue v = AdaptiveKronrod(inner, 0.0, 2 * kPi, {kHalfPi, kPi, 1.5 * kPi}, o.abs_tolerance,
+  std::vector<double> outer_breaks{kHalfPi}, phi_roots;
+  if (!half) outer_breaks.insert(outer_breaks.end(), {kPi, 1.5 * kPi});
+  FacetKinkPhis(sin_w, mu, phi_end, kinks, phi_roots);
+  if (k * sin_w > 1) {
+    // Where that circle's two crossings with the azimuth merge.
+    const double a = std::asin(1 / (k * sin_w));
+    for (double phi : {a, kPi - a, kPi + a, 2 * kPi - a})
+      if (phi < phi_end) outer_breaks.push_back(phi);
+  }
+  const QuadValue v = KronrodWithRoots(inner, 0.0, phi_end, std::move(outer_breaks), phi_roots, o.abs_tolerance / factor,
                                       o.rel_tolerance, o.max_subdivisions, outer_spent);
-  out.value = v.value;
-  out.error = v.error;
+  out.value = v.value * factor;
+  out.error = v.error * factor;
   out.evals = evals;
   return out;
 }
@@ -1022,20 +1140,24 @@ ScatteredEstimate ScatteredPower(const Bxdf<double>& bxdf, const double* params,
   if (w.z() == 0) return out;  // f = 0 on the horizon
   const bool below = w.z() < 0;
   const Vector3d w_up(w.x(), w.y(), std::abs(w.z()));
-  IntegrateOptions ro = options;
-  ro.shape.reset();  // the view's lobe facts, not the model's
-  out.reflected = DirectionalAlbedo(LightSideView(bxdf, below), params, w_up, Method::kAdaptive, ro);
-  if (!(bxdf.Kind() & LobeKind::kTransmission)) return out;
   // v on the other side of the surface for u in the upper hemisphere.
   const auto other = [below](const Vector3d& u) { return Vector3d(u.x(), u.y(), below ? u.z() : -u.z()); };
   // Snell: n_w sin(theta_w) = n_v sin(theta_v), RelativeIndex(w, v) = n_w / n_v.
-  const double k = bxdf.RelativeIndex(params, w, other(Vector3d::UnitZ()));
+  const bool transmits = bxdf.Kind() & LobeKind::kTransmission;
+  const double k = transmits ? bxdf.RelativeIndex(params, w, other(Vector3d::UnitZ())) : 1.0;
+  IntegrateOptions ro = options;
+  ro.shape.reset();  // the view's lobe facts, not the model's
+  // Facets past the critical angle reflect all: Fresnel's kink.
+  if (k > 1) ro.facet_kinks.push_back(std::sqrt(1 - 1 / (k * k)));
+  out.reflected = DirectionalAlbedo(LightSideView(bxdf, below), params, w_up, Method::kAdaptive, ro);
+  if (!transmits) return out;
   const LobeWidth lobe = bxdf.Width(params);
   // Near k = 1 the map m -> t collapses (every m refracts w straight on, the
   // Jacobian vanishes and f_r is a delta): the generic rule about the refracted peak takes over.
   if (lobe.Any() && std::abs(k - 1) > 1e-6) {
     const auto t0 = std::chrono::steady_clock::now();
-    const AdaptiveResult r = AdaptiveRefracted(bxdf, params, w, k, std::min(1.0, lobe.Min()), options);
+    const AdaptiveResult r =
+        AdaptiveRefracted(bxdf, params, w, k, options.shape ? *options.shape : EstimateLobeShape(bxdf, params), options);
     out.transmitted.value = r.value;
     out.transmitted.error = r.error;
     out.transmitted.evals = r.evals;

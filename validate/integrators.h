@@ -76,6 +76,11 @@ struct IntegrateOptions {
   // Adaptive: the lobe facts of this parameter point when already known
   // (tables call the rule many times per point); empty: EstimateLobeShape.
   std::optional<LobeShape> shape;
+  // Adaptive, over the microfacet normal m: values of w.m (w the fixed
+  // direction) where the integrand has a kink, such as the onset of total
+  // internal reflection, where Fresnel's reflectance reaches 1 with an
+  // infinite slope. Both levels of the rule get breakpoints there.
+  std::vector<double> facet_kinks;
 };
 
 // E(wo) = int over the upper hemisphere of f_r(wi, wo) cos(theta_i) dwi.

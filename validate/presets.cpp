@@ -1,0 +1,609 @@
+#include "validate/presets.h"
+
+#include <ImfChannelList.h>
+#include <ImfFloatVectorAttribute.h>
+#include <ImfFrameBuffer.h>
+#include <ImfHeader.h>
+#include <ImfMultiPartOutputFile.h>
+#include <ImfOutputPart.h>
+#include <ImfPartType.h>
+#include <ImfStdIO.h>
+#include <ImfStringAttribute.h>
+#include <half.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <map>
+#include <memory>
+#include <sstream>
+
+#include "brdf/atomic_file.h"
+#include "brdf/microfacet.h"
+#include "brdf/model.h"
+#include "brdf/registry.h"
+#include "validate/albedo.h"
+
+namespace brdfkit::validate {
+
+namespace {
+
+// --- integrands that are not registered models -----------------------------
+
+// The mean of s(wi.h) over the visible normals h of wi, counting only the
+// reflections wo = reflect(wi, h) that leave above the surface:
+//   s_bar(wi) = int D_wi(h) [wo.z > 0] s(wi.h) dh,  D_wi(h) = G1(wi) max(0, wi.h) D(h) / wi.z
+// (Heitz 2018), written as an albedo over wo with dh = dwo / (4 wo.h):
+//   s_bar(wi) = int f(wo, wi) wo.z dwo,  f(wo, wi) = D(h) G1(wi) s(wi.h) / (4 wo.z wi.z),
+// so the half-vector rule integrates it as the directional albedo of wi.
+// GGX, isotropic, alpha held here (the parameter vector is not read).
+class VisibleNormalMean final : public Bxdf<double> {
+ public:
+  VisibleNormalMean(double alpha, std::function<double(double)> s) : alpha_(alpha), s_(std::move(s)) {
+    info_.name = "visible_normal_mean";
+    info_.params.push_back({"alpha", 0, 1, alpha, false, "GGX roughness", ParamInfo::Scale::kLog});
+  }
+  const ModelInfo& Info() const override { return info_; }
+  Rgb<double> Eval(const double*, const Vec3<double>& wo, const Vec3<double>& wi) const override {
+    if (wo.z() <= 0 || wi.z() <= 0) return Rgb<double>::Zero();
+    const Vec3<double> hv = wo + wi;
+    const double len = hv.norm();
+    if (!(len > 0)) return Rgb<double>::Zero();  // opposite directions: no half vector
+    const Vec3<double> h = hv / len;
+    const double c = std::min(1.0, wi.dot(h));
+    if (c <= 0) return Rgb<double>::Zero();
+    const double g1 = 1 / (1 + LambdaGgx(wi, alpha_, alpha_));
+    return Rgb<double>::Constant(DGgx(h, alpha_, alpha_) * g1 * s_(c) / (4 * wo.z() * wi.z()));
+  }
+  BsdfSample<double> Sample(const double*, const Vec3<double>&, double, double) const override { return {}; }
+  double Pdf(const double*, const Vec3<double>&, const Vec3<double>&) const override { return 0; }
+  double SampleWeight(const double*) const override { return 1; }
+  bool CanSample() const override { return false; }
+  unsigned Kind() const override { return LobeKind::kGlossy; }
+  LobeWidth Width(const double*) const override { return {alpha_, alpha_}; }
+  bool ChannelsIndependent() const override { return true; }
+
+ private:
+  double alpha_;
+  std::function<double(double)> s_;
+  ModelInfo info_;
+};
+
+// Filament's cloth lobe: the Charlie sheen distribution (Estevez & Kulla
+// 2017) D(h) = (2 + 1 / alpha) sin(theta_h)^(1 / alpha) / (2 pi) with
+// Neubelt & Pettineo's visibility V = 1 / (4 (NoL + NoV - NoL NoV));
+// f = D V. Its peak lies where h is near the horizon, not at h = n, so it
+// declares no glossy lobe and is integrated in (phi, cos theta).
+class CharlieNeubelt final : public Bxdf<double> {
+ public:
+  explicit CharlieNeubelt(double alpha) : alpha_(alpha) {
+    info_.name = "charlie_neubelt";
+    info_.params.push_back({"alpha", 0, 1, alpha, false, "sheen roughness", ParamInfo::Scale::kLog});
+  }
+  const ModelInfo& Info() const override { return info_; }
+  Rgb<double> Eval(const double*, const Vec3<double>& wi, const Vec3<double>& wo) const override {
+    if (wi.z() <= 0 || wo.z() <= 0) return Rgb<double>::Zero();
+    const Vec3<double> hv = wi + wo;
+    const double len2 = hv.squaredNorm();
+    if (!(len2 > 0)) return Rgb<double>::Zero();  // opposite directions: no half vector
+    // sin^2(theta_h) from the tangential components, exact near the pole.
+    const double sin2 = (hv.x() * hv.x() + hv.y() * hv.y()) / len2;
+    const double d = (2 + 1 / alpha_) * std::pow(sin2, 0.5 / alpha_) / (2 * kPi);
+    const double v = 1 / (4 * (wi.z() + wo.z() - wi.z() * wo.z()));
+    return Rgb<double>::Constant(d * v);
+  }
+  BsdfSample<double> Sample(const double*, const Vec3<double>&, double, double) const override { return {}; }
+  double Pdf(const double*, const Vec3<double>&, const Vec3<double>&) const override { return 0; }
+  double SampleWeight(const double*) const override { return 1; }
+  bool CanSample() const override { return false; }
+  unsigned Kind() const override { return LobeKind::kDiffuse; }
+  bool ChannelsIndependent() const override { return true; }
+
+ private:
+  double alpha_;
+  ModelInfo info_;
+};
+
+// A registered model with its parameters set by name (colour parameters on
+// every channel, or per channel).
+struct Configured {
+  std::unique_ptr<Bxdf<double>> bxdf;
+  std::vector<double> params;
+};
+Configured Configure(const std::string& spec, const std::vector<std::pair<std::string, Eigen::Array3d>>& values) {
+  const Model m = Model::Parse(spec);
+  Configured c{m.Make<double>(), m.Info().Defaults()};
+  for (const auto& [name, v] : values)
+    for (std::size_t i = 0; i < m.Info().params.size(); ++i)
+      if (m.Info().params[i].name == name)
+        for (std::size_t k = 0; k < (m.Info().params[i].colour ? 3u : 1u); ++k) c.params[m.Info().Offset(i) + k] = v[k];
+  return c;
+}
+Eigen::Array3d All(double v) { return Eigen::Array3d::Constant(v); }
+
+// Filament's three DFG channels in one integrand: GGX with f0 = 0 (F =
+// (1 - v.h)^5) and f0 = 1 (F = 1) in R and G, the cloth lobe in B, so that
+// one quadrature serves the texel (the error estimate is the largest of
+// the three).
+class FilamentDfg final : public Bxdf<double> {
+ public:
+  explicit FilamentDfg(double alpha)
+      : ggx_(Configure("ggx", {{"alpha", All(alpha)}, {"f0", Eigen::Array3d(0, 1, 0)}})), cloth_(alpha) {}
+  const ModelInfo& Info() const override { return ggx_.bxdf->Info(); }
+  Rgb<double> Eval(const double*, const Vec3<double>& wi, const Vec3<double>& wo) const override {
+    Rgb<double> f = ggx_.bxdf->Eval(ggx_.params.data(), wi, wo);
+    f[2] = cloth_.Eval(nullptr, wi, wo)[0];
+    return f;
+  }
+  void EvalBatch(const double*, const double* wi, std::size_t wi_stride, const double* wo, std::size_t wo_stride,
+                 std::size_t n, double* out) const override {
+    ggx_.bxdf->EvalBatch(ggx_.params.data(), wi, wi_stride, wo, wo_stride, n, out);
+    for (std::size_t k = 0; k < n; ++k) {
+      const double* a = wi + k * wi_stride;
+      const double* b = wo + k * wo_stride;
+      out[3 * k + 2] = cloth_.Eval(nullptr, Vec3<double>(a[0], a[1], a[2]), Vec3<double>(b[0], b[1], b[2]))[0];
+    }
+  }
+  BsdfSample<double> Sample(const double*, const Vec3<double>&, double, double) const override { return {}; }
+  double Pdf(const double*, const Vec3<double>&, const Vec3<double>&) const override { return 0; }
+  double SampleWeight(const double*) const override { return 1; }
+  bool CanSample() const override { return false; }
+  unsigned Kind() const override { return LobeKind::kGlossy; }
+  LobeWidth Width(const double*) const override { return ggx_.bxdf->Width(ggx_.params.data()); }
+  bool ChannelsIndependent() const override { return true; }
+
+ private:
+  Configured ggx_;
+  CharlieNeubelt cloth_;
+};
+
+// One entry of one table: fills channel c of entry `node` (every channel
+// for c = -1).
+struct Job {
+  PresetTable* table;
+  std::size_t node;
+  int channel;
+  std::function<Estimate()> compute;
+  bool average;  // E_avg jobs cost tens of entries: scheduled first
+};
+
+Estimate Exact(double v) {
+  Estimate e;
+  e.value = Eigen::Array3d::Constant(v);
+  return e;
+}
+
+AlbedoQuadratureOptions Quadrature(const PresetOptions& o) {
+  AlbedoQuadratureOptions q;
+  q.abs_tolerance = o.abs_tolerance;
+  q.max_evals = 4000000;
+  return q;
+}
+
+LobeShape ShapeOf(double alpha) {
+  LobeShape s;
+  s.width = alpha;
+  return s;
+}
+
+PresetAxis NodeAxis(const std::string& name, int n, double lo, double hi) {
+  PresetAxis a;
+  a.name = name;
+  for (int k = 0; k < n; ++k) {
+    const double c = n == 1 ? 0.0 : double(k) / (n - 1);
+    a.coordinate.push_back(c);
+    a.evaluated.push_back(std::clamp(c, lo, hi));
+  }
+  return a;
+}
+
+PresetTable NewTable(const std::string& name, const std::string& definition, std::vector<PresetAxis> axes,
+                     std::vector<std::string> channels) {
+  PresetTable t{name, definition, std::move(axes), std::move(channels), {}, {}};
+  t.value.assign(t.nodes() * t.channels.size(), 0.0);
+  t.error.assign(t.value.size(), 0.0);
+  return t;
+}
+
+// Cycles' index axis: z = F0^(1/4), ior = (1 + z^2) / (1 - z^2).
+double IorOfZ(double z) { return (1 + z * z) / (1 - z * z); }
+
+// Cycles' singular cases (cycles_precompute through bsdf_microfacet.h): the
+// smooth limit where alpha^2 <= 5e-7, no interface where |ior - 1| < 1e-4.
+bool SmoothRoughness(double roughness) { return std::pow(roughness, 4) <= 5e-7; }
+bool MatchedIndex(double ior) { return std::abs(ior - 1) < 1e-4; }
+
+void AddCycles(std::vector<PresetTable>& tables, std::vector<Job>& jobs, const PresetOptions& o) {
+  const AlbedoQuadratureOptions q = Quadrature(o);
+  const PresetAxis rough32 = NodeAxis("roughness", 32, 1e-4, 1), mu32 = NodeAxis("mu", 32, 1e-4, 1);
+  const PresetAxis rough16 = NodeAxis("roughness", 16, 1e-4, 1), mu16 = NodeAxis("mu", 16, 1e-4, 1);
+  const PresetAxis zior = NodeAxis("z", 16, 1e-4, 0.99);
+  tables.reserve(8);
+
+  // GGX reflection, F = 1.
+  tables.push_back(NewTable("table_ggx_E", "E(roughness, mu): GGX reflection albedo with F = 1 (single scattering)",
+                            {rough32, mu32}, {"E"}));
+  PresetTable* ggx_e = &tables.back();
+  tables.push_back(NewTable("table_ggx_Eavg", "E_avg(roughness) = 2 int_0^1 E(mu) mu dmu of table_ggx_E", {rough32},
+                            {"E"}));
+  PresetTable* ggx_avg = &tables.back();
+  for (std::size_t x = 0; x < 32; ++x) {
+    const double r = rough32.evaluated[x];
+    const bool smooth = SmoothRoughness(r);
+    for (std::size_t y = 0; y < 32; ++y) {
+      const double mu = mu32.evaluated[y];
+      jobs.push_back({ggx_e, y * 32 + x, 0, [=] {
+                        if (smooth) return Exact(1);  // a mirror with F = 1 reflects everything
+                        const Configured c = Configure("ggx", {{"alpha", All(r * r)}, {"f0", All(1)}});
+                        return AlbedoAtMu(*c.bxdf, c.params.data(), mu, ShapeOf(r * r), q);
+                      }, false});
+    }
+    jobs.push_back({ggx_avg, x, 0, [=] {
+                      if (smooth) return Exact(1);
+                      const Configured c = Configure("ggx", {{"alpha", All(r * r)}, {"f0", All(1)}});
+                      return AverageAlbedo(*c.bxdf, c.params.data(), ShapeOf(r * r), q);
+                    }, true});
+  }
+
+  // Rough glass, from outside (eta = ior) and from inside (eta = 1 / ior).
+  for (const bool inv : {false, true}) {
+    const std::string stem = inv ? "table_ggx_glass_inv_" : "table_ggx_glass_";
+    const std::string side = inv ? "eta = 1 / ior(z), light from inside" : "eta = ior(z), light from outside";
+    tables.push_back(NewTable(stem + "E", "E_R + E_T(roughness, mu, z): power scattered by rough glass, " + side,
+                              {rough16, mu16, zior}, {"E"}));
+    PresetTable* e = &tables.back();
+    tables.push_back(NewTable(stem + "Eavg", "E_avg(roughness, z) = 2 int_0^1 (E_R + E_T) mu dmu, " + side,
+                              {rough16, zior}, {"E"}));
+    PresetTable* avg = &tables.back();
+    for (std::size_t z = 0; z < 16; ++z) {
+      const double ior = IorOfZ(zior.evaluated[z]);
+      const double eta = inv ? 1 / ior : ior;
+      for (std::size_t x = 0; x < 16; ++x) {
+        const double r = rough16.evaluated[x];
+        // A smooth interface reflects F and transmits 1 - F; a matched one transmits all.
+        const bool exact = SmoothRoughness(r) || MatchedIndex(ior);
+        for (std::size_t y = 0; y < 16; ++y) {
+          const double mu = mu16.evaluated[y];
+          jobs.push_back({e, (z * 16 + y) * 16 + x, 0, [=] {
+                            if (exact) return Exact(1);
+                            const Configured c = Configure("ggx_glass_correlated", {{"alpha", All(r * r)}, {"eta", All(eta)}});
+                            return AlbedoAtMu(*c.bxdf, c.params.data(), mu, ShapeOf(r * r), q);
+                          }, false});
+        }
+        jobs.push_back({avg, z * 16 + x, 0, [=] {
+                          if (exact) return Exact(1);
+                          const Configured c = Configure("ggx_glass_correlated", {{"alpha", All(r * r)}, {"eta", All(eta)}});
+                          return AverageAlbedo(*c.bxdf, c.params.data(), ShapeOf(r * r), q);
+                        }, true});
+      }
+    }
+  }
+
+  // Generalised Schlick interpolation factors.
+  for (const bool ior_mode : {true, false}) {
+    PresetAxis zaxis = zior;
+    tables.push_back(NewTable(
+        ior_mode ? "table_ggx_gen_schlick_ior_s" : "table_ggx_gen_schlick_s",
+        ior_mode ? "s_bar(roughness, mu, z): mean over the visible normals of (F(wi.h, ior(z)) - F0) / (1 - F0), "
+                   "reflections above the surface"
+                 : "s_bar(roughness, mu, z): mean over the visible normals of (1 - wi.h)^e, e = 5 (1 - z) / z, "
+                   "reflections above the surface",
+        {rough16, mu16, zaxis}, {"s"}));
+    PresetTable* t = &tables.back();
+    for (std::size_t z = 0; z < 16; ++z) {
+      const double zz = zior.evaluated[z];
+      const double ior = ior_mode ? IorOfZ(zz) : 1.0;
+      const double f0 = std::pow((ior - 1) / (ior + 1), 2);
+      const double e = 5 * (1 - zz) / zz;
+      std::function<double(double)> s;
+      if (ior_mode) {
+        s = [ior, f0](double c) {
+          return std::clamp((FresnelDielectric(ior, c) - f0) / (1 - f0), 0.0, 1.0);
+        };
+      } else {
+        s = [e](double c) { return std::pow(std::max(0.0, 1 - c), e); };
+      }
+      for (std::size_t x = 0; x < 16; ++x) {
+        const double r = rough16.evaluated[x];
+        for (std::size_t y = 0; y < 16; ++y) {
+          const double mu = mu16.evaluated[y];
+          jobs.push_back({t, (z * 16 + y) * 16 + x, 0, [=] {
+                            // Matched index: F = F0 = 0 everywhere.
+                            if (ior_mode && MatchedIndex(ior)) return Exact(0);
+                            if (SmoothRoughness(r)) return Exact(s(mu));  // every visible normal is n
+                            const VisibleNormalMean m(r * r, s);
+                            return AlbedoAtMu(m, nullptr, mu, ShapeOf(r * r), q);
+                          }, false});
+        }
+      }
+    }
+  }
+}
+
+void AddFilament(std::vector<PresetTable>& tables, std::vector<Job>& jobs, const PresetOptions& o) {
+  const AlbedoQuadratureOptions q = Quadrature(o);
+  const int n = o.filament_size;
+  PresetAxis nov{"NoV", {}, {}}, rough{"roughness", {}, {}};
+  for (int i = 0; i < n; ++i) {
+    nov.coordinate.push_back((i + 0.5) / n);
+    nov.evaluated.push_back((i + 0.5) / n);
+    // Row j holds perceptual roughness (j + 1.5) / N, one texel above the
+    // coordinate (j + 0.5) / N the shader samples it at (cmgen's rows).
+    rough.coordinate.push_back((i + 0.5) / n);
+    rough.evaluated.push_back(std::min(1.0, (i + 1.5) / n));
+  }
+  tables.push_back(NewTable("DFG_LUT",
+                            "R = int f(F = (1 - v.h)^5) NoL dl, G = int f(F = 1) NoL dl (GGX, height-correlated "
+                            "Smith), B = int D_Charlie V_Neubelt NoL dl",
+                            {nov, rough}, {"R", "G", "B"}));
+  PresetTable* t = &tables.back();
+  for (int j = 0; j < n; ++j) {
+    const double r = rough.evaluated[j], alpha = r * r;
+    for (int i = 0; i < n; ++i) {
+      const double mu = nov.evaluated[i];
+      const std::size_t node = std::size_t(j) * n + i;
+      jobs.push_back({t, node, -1, [=] {
+                        const FilamentDfg m(alpha);
+                        return AlbedoAtMu(m, nullptr, mu, ShapeOf(alpha), q);
+                      }, false});
+    }
+  }
+}
+
+}  // namespace
+
+std::vector<std::string> PresetNames() { return {"cycles", "filament"}; }
+
+Preset BuildPreset(const std::string& name, const PresetOptions& options) {
+  const auto start = std::chrono::steady_clock::now();
+  Preset p;
+  p.name = name;
+  std::vector<Job> jobs;
+  if (name == "cycles") {
+    AddCycles(p.tables, jobs, options);
+  } else if (name == "filament") {
+    if (options.filament_size < 2 || options.filament_size > 4096)
+      throw ModelError("filament table size " + std::to_string(options.filament_size) + " is outside [2, 4096]");
+    AddFilament(p.tables, jobs, options);
+  } else {
+    throw ModelError("unknown table preset '" + name + "' (presets: cycles, filament)");
+  }
+  if (!options.tables.empty()) {
+    std::string names;
+    for (const PresetTable& t : p.tables) names += (names.empty() ? "" : ", ") + t.name;
+    for (const std::string& want : options.tables)
+      if (std::none_of(p.tables.begin(), p.tables.end(), [&](const PresetTable& t) { return t.name == want; }))
+        throw ModelError("preset '" + name + "' has no table '" + want + "' (its tables: " + names + ")");
+    const auto unwanted = [&](const PresetTable* t) {
+      return std::find(options.tables.begin(), options.tables.end(), t->name) == options.tables.end();
+    };
+    jobs.erase(std::remove_if(jobs.begin(), jobs.end(), [&](const Job& j) { return unwanted(j.table); }), jobs.end());
+  }
+  std::stable_partition(jobs.begin(), jobs.end(), [](const Job& j) { return j.average; });
+  std::atomic<std::size_t> done{0};
+  std::atomic<std::int64_t> evals{0};
+  tbb::parallel_for(std::size_t(0), jobs.size(), [&](std::size_t k) {
+    Job& j = jobs[k];
+    const Estimate e = j.compute();
+    const std::size_t nc = j.table->channels.size();
+    for (std::size_t c = 0; c < nc; ++c) {
+      if (j.channel >= 0 && std::size_t(j.channel) != c) continue;
+      j.table->value[j.node * nc + c] = e.value[j.channel >= 0 ? 0 : c];
+      j.table->error[j.node * nc + c] = e.error[j.channel >= 0 ? 0 : c];
+    }
+    evals += e.evals;
+    const std::size_t d = ++done;
+    if (options.progress) options.progress(d, jobs.size());
+  });
+  if (!options.tables.empty()) {
+    // Pruned only now: the jobs point into the full list.
+    std::vector<PresetTable> kept;
+    for (PresetTable& t : p.tables)
+      if (std::find(options.tables.begin(), options.tables.end(), t.name) != options.tables.end())
+        kept.push_back(std::move(t));
+    p.tables = std::move(kept);
+  }
+  for (const PresetTable& t : p.tables)
+    for (double e : t.error) p.max_error = std::max(p.max_error, e);
+  p.evals = std::size_t(evals.load());
+  p.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return p;
+}
+
+std::string DescribePresetMisses(const Preset& p, double tolerance, std::size_t shown) {
+  struct Miss {
+    std::string where;
+    double error;
+  };
+  std::vector<Miss> misses;
+  for (const PresetTable& t : p.tables)
+    for (std::size_t k = 0; k < t.error.size(); ++k)
+      if (!(t.error[k] <= tolerance)) {
+        const std::size_t node = k / t.channels.size();
+        std::string at;
+        std::size_t rest = node;
+        for (const PresetAxis& a : t.axes) {
+          const std::size_t i = rest % a.coordinate.size();
+          rest /= a.coordinate.size();
+          at += (at.empty() ? "" : ", ") + a.name + " " + FormatDouble(a.evaluated[i]);
+        }
+        misses.push_back({t.name + "[" + std::to_string(node) + "] " + t.channels[k % t.channels.size()] + " (" +
+                              at + ")",
+                          t.error[k]});
+      }
+  if (misses.empty()) return "";
+  std::sort(misses.begin(), misses.end(), [](const Miss& a, const Miss& b) { return a.error > b.error; });
+  std::ostringstream s;
+  s << misses.size() << " preset entries miss the error tolerance " << FormatDouble(tolerance) << ":";
+  for (std::size_t k = 0; k < std::min(shown, misses.size()); ++k)
+    s << "\n  " << misses[k].where << ": error estimate " << FormatDouble(misses[k].error);
+  return s.str();
+}
+
+unsigned short HalfBits(double v) { return half(float(v)).bits(); }
+
+namespace {
+
+bool IsFilament(const Preset& p) { return p.name == "filament"; }
+
+std::string HexHalf(double v) {
+  char buf[16];
+  std::snprintf(buf, sizeof buf, "0x%04x", unsigned(HalfBits(v)));
+  return buf;
+}
+
+// The array body: Cycles one row of the fastest axis a line, Filament four
+// texels (twelve halves) a line.
+std::string ArrayBody(const Preset& p, const PresetTable& t) {
+  std::ostringstream s;
+  if (IsFilament(p)) {
+    for (std::size_t k = 0; k < t.value.size(); ++k)
+      s << (k % 12 == 0 ? "    " : "") << HexHalf(t.value[k]) << ", " << (k % 12 == 11 ? "\n" : "");
+    if (t.value.size() % 12) s << "\n";
+    return s.str();
+  }
+  const std::size_t row = t.axes[0].coordinate.size();
+  for (std::size_t k = 0; k < t.value.size(); ++k)
+    s << (k % row == 0 ? "  " : " ") << FloatLiteral(t.value[k], t.name + "[" + std::to_string(k) + "]") << ","
+      << (k % row == row - 1 ? "\n" : "");
+  return s.str();
+}
+
+std::string AxesText(const PresetTable& t) {
+  std::string s;
+  for (const PresetAxis& a : t.axes) s += (s.empty() ? "" : ", ") + a.name + ":" + std::to_string(a.coordinate.size());
+  return s;
+}
+
+}  // namespace
+
+void WritePresetHeader(const Preset& p, const std::string& path) {
+  std::ostringstream s;
+  const bool inc = path.size() >= 4 && path.compare(path.size() - 4, 4, ".inc") == 0;
+  if (inc) {
+    if (!IsFilament(p))
+      throw ModelError("'" + path + "': a .inc file holds Filament's one array; preset '" + p.name + "' has " +
+                       std::to_string(p.tables.size()) + " (write a .h header)");
+    // cmgen's dfg.inc: two comment lines, a blank line, the array body.
+    s << "// generated with: brdfkit albedo --preset filament --header " << path << "\n"
+      << "// DFG LUT stored as an RGB16F texture, in GL order\n\n"
+      << ArrayBody(p, p.tables[0]);
+    WriteFileAtomic(path, s.str());
+    return;
+  }
+  s << "/* Generated by brdfkit albedo --preset " << p.name << ". Largest error estimate "
+    << FormatDouble(p.max_error) << ".\n";
+  if (IsFilament(p)) {
+    const PresetTable& t = p.tables[0];
+    const std::size_t n = t.axes[0].coordinate.size();
+    s << " * Filament's split-sum DFG texture: " << n << " x " << n
+      << " texels, RGB, IEEE half floats (round to nearest even).\n"
+      << " * Element 3 (j " << n << " + i) + c: texel i (NoV = (i + 0.5) / " << n << ") of row j (perceptual\n"
+      << " * roughness min(1, (j + 1.5) / " << n << "), sampled at (j + 0.5) / " << n << "), channel c:\n"
+      << " *   R = int f(F = (1 - v.h)^5) NoL dl, G = int f(F = 1) NoL dl (GGX, height-correlated Smith),\n"
+      << " *   B = int D_Charlie V_Neubelt NoL dl (cloth).\n"
+      << " * Sample with linear filtering at (NoV, perceptual roughness), clamped to the edge; the\n"
+      << " * specular response is mix(R, G, f0) and the energy compensation 1 + f0 (1 / G - 1). */\n"
+      << "#ifndef BRDFKIT_FILAMENT_DFG_H\n#define BRDFKIT_FILAMENT_DFG_H\n\n#include <stdint.h>\n\n"
+      << "#define DFG_LUT_SIZE " << n << "\n\n"
+      << "static const uint16_t DFG_LUT[" << t.value.size() << "] = {\n"
+      << ArrayBody(p, t) << "};\n\n#endif\n";
+    WriteFileAtomic(path, s.str());
+    return;
+  }
+  s << " * Blender Cycles' microfacet albedo tables (src/scene/shader.tables), in its layout: the first\n"
+    << " * axis runs fastest, element [z nx ny + y nx + x]; node k of an axis of N nodes is k / (N - 1)\n"
+    << " * and lookups map coordinate 0 and 1 onto the first and last node (kernel/util/lookup_table.h).\n"
+    << " * roughness: alpha = roughness^2; mu = cos(theta); z = F0^(1/4), ior = (1 + z^2) / (1 - z^2).\n"
+    << " * Entries are evaluated where Cycles' generator evaluates them (mu and roughness at least 1e-4,\n"
+    << " * z in [1e-4, 0.99]; roughness 0 as a smooth surface and z 0 as a matched index).\n";
+  for (const PresetTable& t : p.tables) s << " *   " << t.name << " [" << AxesText(t) << "]: " << t.definition << "\n";
+  s << " */\n#ifndef BRDFKIT_CYCLES_TABLES_H\n#define BRDFKIT_CYCLES_TABLES_H\n\n";
+  for (const PresetTable& t : p.tables)
+    s << "static const float " << t.name << "[" << t.value.size() << "] = {\n" << ArrayBody(p, t) << "};\n\n";
+  s << "#endif\n";
+  WriteFileAtomic(path, s.str());
+}
+
+void WritePresetCsv(const Preset& p, const std::string& path) {
+  std::ostringstream s;
+  s << "table,index,axis0,coord0,at0,axis1,coord1,at1,axis2,coord2,at2,channel,value,error\n";
+  for (const PresetTable& t : p.tables)
+    for (std::size_t node = 0; node < t.nodes(); ++node)
+      for (std::size_t c = 0; c < t.channels.size(); ++c) {
+        s << t.name << "," << node;
+        std::size_t rest = node;
+        for (std::size_t k = 0; k < 3; ++k) {
+          if (k < t.axes.size()) {
+            const PresetAxis& a = t.axes[k];
+            const std::size_t i = rest % a.coordinate.size();
+            rest /= a.coordinate.size();
+            s << "," << a.name << "," << FormatDouble(a.coordinate[i]) << "," << FormatDouble(a.evaluated[i]);
+          } else {
+            s << ",,,";
+          }
+        }
+        const std::size_t at = node * t.channels.size() + c;
+        s << "," << t.channels[c] << "," << FormatDouble(t.value[at]) << "," << FormatDouble(t.error[at]) << "\n";
+      }
+  WriteFileAtomic(path, s.str());
+}
+
+void WritePresetExr(const Preset& p, const std::string& path) {
+  int max_w = 1, max_h = 1;
+  for (const PresetTable& t : p.tables) {
+    max_w = std::max(max_w, int(t.axes[0].coordinate.size()));
+    max_h = std::max(max_h, int(t.nodes() / t.axes[0].coordinate.size()));
+  }
+  const Imath::Box2i display(Imath::V2i(0, 0), Imath::V2i(max_w - 1, max_h - 1));
+  std::vector<Imf::Header> headers;
+  std::vector<std::vector<float>> planes;  // per table, channel-major
+  for (const PresetTable& t : p.tables) {
+    const int w = int(t.axes[0].coordinate.size()), h = int(t.nodes() / t.axes[0].coordinate.size());
+    Imf::Header hd(display, Imath::Box2i(Imath::V2i(0, 0), Imath::V2i(w - 1, h - 1)));
+    hd.setName(t.name);
+    hd.setType(Imf::SCANLINEIMAGE);
+    hd.compression() = Imf::ZIP_COMPRESSION;
+    const bool grey = t.channels.size() == 1;
+    for (const std::string& c : t.channels) hd.channels().insert(grey ? "Y" : c, Imf::Channel(Imf::FLOAT));
+    hd.insert("brdfkit.preset", Imf::StringAttribute(p.name));
+    hd.insert("brdfkit.definition", Imf::StringAttribute(t.definition));
+    hd.insert("brdfkit.axes", Imf::StringAttribute(AxesText(t)));
+    for (const PresetAxis& a : t.axes) {
+      hd.insert("brdfkit.nodes." + a.name, Imf::FloatVectorAttribute(std::vector<float>(a.coordinate.begin(),
+                                                                                         a.coordinate.end())));
+      hd.insert("brdfkit.evaluated." + a.name,
+                Imf::FloatVectorAttribute(std::vector<float>(a.evaluated.begin(), a.evaluated.end())));
+    }
+    headers.push_back(hd);
+    std::vector<float> plane(t.value.size());
+    const std::size_t nc = t.channels.size(), nn = t.nodes();
+    for (std::size_t node = 0; node < nn; ++node)
+      for (std::size_t c = 0; c < nc; ++c) plane[c * nn + node] = float(t.value[node * nc + c]);
+    planes.push_back(std::move(plane));
+  }
+  AtomicFile file(path, std::ios::out | std::ios::binary);
+  {
+    Imf::StdOFStream os(file.stream(), path.c_str());
+    Imf::MultiPartOutputFile out(os, headers.data(), int(headers.size()));
+    for (std::size_t k = 0; k < p.tables.size(); ++k) {
+      const PresetTable& t = p.tables[k];
+      const std::size_t w = t.axes[0].coordinate.size(), nn = t.nodes();
+      Imf::OutputPart part(out, int(k));
+      Imf::FrameBuffer fb;
+      const bool grey = t.channels.size() == 1;
+      for (std::size_t c = 0; c < t.channels.size(); ++c)
+        fb.insert(grey ? "Y" : t.channels[c],
+                  Imf::Slice(Imf::FLOAT, reinterpret_cast<char*>(planes[k].data() + c * nn), sizeof(float),
+                             sizeof(float) * w));
+      part.setFrameBuffer(fb);
+      part.writePixels(int(nn / w));
+    }
+  }
+  file.Commit();
+}
+
+}  // namespace brdfkit::validate
