@@ -5,6 +5,7 @@
 #include <cmath>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 
 #include "fit/fit_internal.h"
 
@@ -55,9 +56,16 @@ Engine::Engine(const Evaluators& model, const Options& o, double loss_scale, con
   if (jet_ == 16) b16_ = model.MakeJet16();
   if (jet_ == 32) b32_ = model.MakeJet32();
   if (o.instrument) {
-    int order = o.aperture_order > 0 ? o.aperture_order : o.instrument->quadrature.order;
-    if (order <= 0) order = 3;  // automatic order of the synthesiser: 3 reaches ~1e-6 for 1-degree cones
-    quad_ = std::make_unique<synth::ApertureQuadrature>(synth::MakeApertureQuadrature(*o.instrument, order));
+    const synth::QuadratureSettings& settings = o.instrument->quadrature;
+    const int order = o.aperture_order > 0 ? o.aperture_order : settings.order;
+    if (order > 0) {
+      quad_ = std::make_unique<synth::ApertureQuadrature>(synth::MakeApertureQuadrature(*o.instrument, order));
+    } else {
+      // Automatic order: each pair's rules rise on their own, as synth measures.
+      const int degree = 4 * settings.max_order - 1;
+      ladder_ = std::make_unique<synth::ApertureLadder>(synth::MakeApertureLadder(*o.instrument, degree, degree));
+      tolerance_ = settings.tolerance;
+    }
   }
 }
 
@@ -108,6 +116,19 @@ void Engine::ResidualsOf(const Rgb<T>& f, const Prepared& d, std::size_t q, bool
 template <class T>
 Rgb<T> Engine::Prediction(const Bxdf<T>& b, const T* p, const Prepared& d, std::size_t q) const {
   if (quad_) return synth::MeasuredBrdf(b, p, d.wi[q], d.wo[q], *quad_);
+  if (ladder_) {
+    const Eigen::Vector3d &wi = d.wi[q], &wo = d.wo[q];
+    if constexpr (std::is_same_v<T, double>) {
+      return synth::MeasureAdaptive(b, p, wi, wi, wo, wo, *ladder_, tolerance_).f;
+    } else {
+      // The levels the parameters' values stop at; the derivatives are taken with them held.
+      std::array<double, 64> value;
+      for (std::size_t k = 0; k < n_; ++k) value[k] = p[k].a;
+      const synth::AdaptiveMeasurement m =
+          synth::MeasureAdaptive(*b_, value.data(), wi, wi, wo, wo, *ladder_, tolerance_);
+      return synth::MeasuredAtLevels(b, p, wi, wo, *ladder_, m.source_level, m.detector_level);
+    }
+  }
   const Vec3<T> wi = d.wi[q].template cast<T>(), wo = d.wo[q].template cast<T>();
   return b.Eval(p, wi, wo);
 }
@@ -120,7 +141,7 @@ bool Engine::EvalDouble(const double* u, const Prepared& d, std::size_t begin, s
                         double* r) const {
   std::vector<double> p(n_);
   ToUser(u, p.data());
-  if (quad_) {
+  if (quad_ || ladder_) {
     for (std::size_t q = begin; q < end; ++q) SampleResiduals(*b_, p.data(), d, q, fit, r + 3 * (q - begin));
   } else if (end > begin) {
     // f_r of the whole range in one EvalBatch call (the model's vectorised kernel).

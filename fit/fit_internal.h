@@ -190,7 +190,9 @@ class Engine {
   std::unique_ptr<Bxdf<Jet<8>>> b8_;
   std::unique_ptr<Bxdf<Jet<16>>> b16_;
   std::unique_ptr<Bxdf<Jet<32>>> b32_;
-  std::unique_ptr<synth::ApertureQuadrature> quad_;
+  std::unique_ptr<synth::ApertureQuadrature> quad_;  // a fixed aperture order
+  std::unique_ptr<synth::ApertureLadder> ladder_;    // the automatic order: per-pair rules (MeasureAdaptive)
+  double tolerance_ = 0;                              // of the automatic order
 };
 
 // ---------------------------------------------------------------------------
