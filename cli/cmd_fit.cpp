@@ -236,7 +236,7 @@ void RegisterFit(CLI::App& app) {
   cmd->add_flag("--no-covariance", no_cov, "skip the uncertainty computation");
   cmd->add_flag("--ignore-sigma", ignore_sigma, "do not weight by the table's sigma columns");
   cmd->add_option("--instrument", instrument, "instrument JSON: fit through its finite apertures");
-  cmd->add_option("--aperture-order", aperture_order, "aperture quadrature order for --instrument (default: its own, or 3)");
+  cmd->add_option("--aperture-order", aperture_order, "aperture quadrature order for --instrument (default: its own; automatic: per-pair adaptive, as synth)");
   cmd->add_flag("--json", json, "print the result as JSON");
   cmd->add_option("--out,-o", out, "write the result JSON to FILE (usable as --model fit:FILE)");
   cmd->add_option("--trace", trace, "write the per-iteration trace (seconds, cost, rmse) as CSV");

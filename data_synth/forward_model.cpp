@@ -228,6 +228,8 @@ AdaptiveMeasurement MeasureAdaptive(const Bxdf<double>& bxdf, const double* para
     a += up_s;
     b += up_d;
   }
+  out.source_level = a;
+  out.detector_level = b;
   // Highest levels used: the levels only rise, and each step also reads the next one.
   const int top_s = std::min(a + 1, ns), top_d = std::min(b + 1, nd);
   out.norm = source_cone(top_s).nominal_projected * detector_cone(top_d).nominal_projected;

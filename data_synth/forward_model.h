@@ -151,13 +151,18 @@ ApertureIntegral<T> IntegrateApertures(const Bxdf<T>& bxdf, const T* params, con
 // nominal cone lies wholly below the horizon (nothing is measured there).
 template <class T>
 Rgb<T> MeasuredBrdf(const Bxdf<T>& bxdf, const T* params, const Eigen::Vector3d& wi, const Eigen::Vector3d& wo,
-                    const ApertureQuadrature& q) {
-  const PlacedCone src = PlaceCone(q.source, wi, wi, q.sample_from_lab);
-  const PlacedCone det = PlaceCone(q.detector, wo, wo, q.sample_from_lab);
+                    const ConeRule& source, const ConeRule& detector, const Eigen::Matrix3d& sample_from_lab) {
+  const PlacedCone src = PlaceCone(source, wi, wi, sample_from_lab);
+  const PlacedCone det = PlaceCone(detector, wo, wo, sample_from_lab);
   const ApertureIntegral<T> a = IntegrateApertures(bxdf, params, src, det);
   const double norm = a.Norm();
   if (!(norm > 0)) return Rgb<T>::Constant(T(0));  // no nominal flux: not a measurable geometry
   return a.weighted / T(norm);
+}
+template <class T>
+Rgb<T> MeasuredBrdf(const Bxdf<T>& bxdf, const T* params, const Eigen::Vector3d& wi, const Eigen::Vector3d& wo,
+                    const ApertureQuadrature& q) {
+  return MeasuredBrdf(bxdf, params, wi, wo, q.source, q.detector, q.sample_from_lab);
 }
 
 // Automatic order: each cone's rule rises on its own, per pair, through the
@@ -191,11 +196,30 @@ struct AdaptiveMeasurement {
   int source_degree = 0, detector_degree = 0;  // highest rule degrees used (0: a point cone)
   bool converged = false;  // error below the tolerance; false: the ladder's top was reached, or would not do
   long evaluations = 0;    // BRDF evaluations
+  int source_level = 1, detector_level = 1;  // the levels (a, b) it stopped at (MeasuredAtLevels)
 };
 // f_hat with cones around the `actual` arm directions (jitter) normalised by
 // the `nominal` ones, as PlaceCone.
 AdaptiveMeasurement MeasureAdaptive(const Bxdf<double>& bxdf, const double* params, const Eigen::Vector3d& actual_i,
                                     const Eigen::Vector3d& nominal_i, const Eigen::Vector3d& actual_o,
                                     const Eigen::Vector3d& nominal_o, const ApertureLadder& ladder, double tolerance);
+
+// MeasureAdaptive's f_hat at the levels (a, b) it stopped at, for any scalar
+// T (ceres::Jet: fits through the instrument differentiate it with the
+// levels held): I(a, b) plus the step of each cone below the ladder's top,
+// I(a+1, b) - I(a, b) and I(a, b+1) - I(a, b). Nominal and actual arms are
+// the same (no jitter).
+template <class T>
+Rgb<T> MeasuredAtLevels(const Bxdf<T>& bxdf, const T* params, const Eigen::Vector3d& wi, const Eigen::Vector3d& wo,
+                        const ApertureLadder& ladder, int a, int b) {
+  const auto I = [&](int i, int j) {
+    return MeasuredBrdf(bxdf, params, wi, wo, ladder.source[i - 1], ladder.detector[j - 1], ladder.sample_from_lab);
+  };
+  const Rgb<T> p = I(a, b);
+  Rgb<T> f = p;
+  if (a < static_cast<int>(ladder.source.size())) f += I(a + 1, b) - p;
+  if (b < static_cast<int>(ladder.detector.size())) f += I(a, b + 1) - p;
+  return f;
+}
 
 }  // namespace brdfkit::synth

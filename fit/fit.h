@@ -138,7 +138,10 @@ struct Options {
   bool covariance = true;
   // Fit through the instrument's finite apertures (data_synth forward model).
   const synth::Instrument* instrument = nullptr;
-  int aperture_order = 0;  // 0: the instrument's own setting, or 3 when automatic
+  // 0: the instrument's own setting. Its automatic order is synth's: each
+  // pair's source and detector rules rise on their own until they meet its
+  // tolerance (MeasureAdaptive), the derivatives taken at those rules.
+  int aperture_order = 0;
   // Parameters held fixed, tied to another, or bounded more narrowly than
   // the model's table, each "name=...,name=..." over the model's parameter
   // names ("ggx.f0", "ggx#2.alpha"):

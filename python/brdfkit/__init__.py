@@ -174,6 +174,8 @@ def fit(model, data, wo=None, f=None, sigma=None, *, init=None, metric="l2", los
     instrument : str or dict, optional
         Fit through this instrument's finite apertures.
     aperture_order : int
+        Aperture quadrature order with ``instrument``; 0 (default): the
+        instrument's own, whose automatic order is synth's per-pair adaptive rule.
     fix : dict or str, optional
         Parameters held fixed, e.g. ``{"ggx.f0": 0.04, "lambert.albedo": (0.2, 0.3, 0.4)}``
         (stddev 0, listed in the result's ``fixed``).

@@ -304,7 +304,7 @@ class FitMemo {
     wi_.resize(3 * rows_);
     wo_.resize(3 * rows_);
     for (std::size_t k = 0; k < rows_; ++k) {
-      // The fitter normalises the data's directions the same way (fit.cpp Prepare).
+      // The fitter normalises the data's directions the same way (fit/metrics.cpp, Prepare).
       const Eigen::Vector3d a = data.samples[k].wi.normalized(), b = data.samples[k].wo.normalized();
       std::copy(a.data(), a.data() + 3, wi_.data() + 3 * k);
       std::copy(b.data(), b.data() + 3, wo_.data() + 3 * k);

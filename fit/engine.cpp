@@ -1,0 +1,194 @@
+// Residuals and Jacobians of a model over prepared samples: the parameter
+// transform (log scale, fixed and tied slots), shared derivative slots of
+// colour parameters, and the instrument's apertures.
+#include <array>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+#include <type_traits>
+
+#include "fit/fit_internal.h"
+
+namespace brdfkit::fit {
+
+Engine::Engine(const Evaluators& model, const Options& o, double loss_scale, const Layout& layout)
+    : metric_(o.metric), loss_(o.loss), loss_scale_(loss_scale), layout_(layout) {
+  const ModelInfo& info = model.Info();
+  n_ = info.PackedSize();
+  nf_ = layout.Free();
+  std::vector<std::size_t> param_of;  // packed slot -> index into info.params
+  std::vector<int> channel_of;        // packed slot -> channel of a colour parameter, else -1
+  for (std::size_t i = 0; i < info.params.size(); ++i)
+    for (int c = 0; c < (info.params[i].colour ? 3 : 1); ++c) {
+      param_of.push_back(i);
+      channel_of.push_back(info.params[i].colour ? c : -1);
+    }
+  for (std::size_t j = 0; j < nf_; ++j)
+    log_.push_back(info.params[param_of[layout.rep[j]]].scale == ParamInfo::Scale::kLog);
+  b_ = model.MakeDouble();
+  // Derivative slots: one per free scalar parameter and one per free
+  // colour parameter, shared by its r, g, b slots. Channel c of f_r
+  // depends only on slot c of each colour parameter (the models declare
+  // it; a tie joins colour parameters channel by channel), so the shared
+  // slot's derivative in channel c is the derivative by the c slot: Jets
+  // of 3 slots instead of 7 for lambert+ggx.
+  const bool shared = b_->ChannelsIndependent();
+  std::vector<int> slot_of_param(info.params.size(), -1);
+  for (std::size_t j = 0; j < nf_; ++j) {
+    const std::size_t k = layout.rep[j];
+    const int c = channel_of[k];
+    if (shared && c >= 0) {
+      int& s = slot_of_param[param_of[k]];
+      if (s < 0) s = int(n_slots_++);
+      slot_.push_back(std::size_t(s));
+      channel_.push_back(c);
+    } else {
+      slot_.push_back(n_slots_++);
+      channel_.push_back(-1);
+    }
+  }
+  if (n_slots_ > 32 || n_ > 64)
+    throw std::invalid_argument("model '" + info.name + "' has " + std::to_string(nf_) +
+                                " free parameters; fitting supports at most 32 (and 64 packed values)");
+  jet_ = n_slots_ <= 4 ? 4 : n_slots_ <= 8 ? 8 : n_slots_ <= 16 ? 16 : 32;
+  if (jet_ == 4) b4_ = model.MakeJet4();
+  if (jet_ == 8) b8_ = model.MakeJet8();
+  if (jet_ == 16) b16_ = model.MakeJet16();
+  if (jet_ == 32) b32_ = model.MakeJet32();
+  if (o.instrument) {
+    const synth::QuadratureSettings& settings = o.instrument->quadrature;
+    const int order = o.aperture_order > 0 ? o.aperture_order : settings.order;
+    if (order > 0) {
+      quad_ = std::make_unique<synth::ApertureQuadrature>(synth::MakeApertureQuadrature(*o.instrument, order));
+    } else {
+      // Automatic order: each pair's rules rise on their own, as synth measures.
+      const int degree = 4 * settings.max_order - 1;
+      ladder_ = std::make_unique<synth::ApertureLadder>(synth::MakeApertureLadder(*o.instrument, degree, degree));
+      tolerance_ = settings.tolerance;
+    }
+  }
+}
+
+// Internal (optimised, free) -> user parameters (packed).
+template <class T>
+void Engine::ToUser(const T* u, T* p) const {
+  using std::exp;
+  std::array<T, 64> y;
+  for (std::size_t j = 0; j < nf_; ++j) y[j] = log_[j] ? exp(u[j]) : u[j];
+  for (std::size_t k = 0; k < n_; ++k) {
+    const int f = layout_.free_of[k];
+    p[k] = f < 0 ? T(layout_.value[k]) : y[std::size_t(f)];
+  }
+}
+
+std::vector<double> Engine::ToUser(const std::vector<double>& u) const {
+  std::vector<double> p(n_);
+  ToUser(u.data(), p.data());
+  return p;
+}
+
+std::vector<double> Engine::ToInternal(const std::vector<double>& p) const {
+  std::vector<double> u(nf_);
+  for (std::size_t j = 0; j < nf_; ++j) {
+    const double v = p[layout_.rep[j]];
+    u[j] = log_[j] ? std::log(v) : v;
+  }
+  return u;
+}
+
+// Residuals of sample q: out[3]. fit: fit weights and robust loss; else
+// the plain metric.
+template <class T>
+void Engine::SampleResiduals(const Bxdf<T>& b, const T* p, const Prepared& d, std::size_t q, bool fit, T* out) const {
+  ResidualsOf(Prediction(b, p, d, q), d, q, fit, out);
+}
+
+template <class T>
+void Engine::ResidualsOf(const Rgb<T>& f, const Prepared& d, std::size_t q, bool fit, T* out) const {
+  for (int c = 0; c < 3; ++c) {
+    const T g = MetricTransform(metric_, f[c], d.cos_i[q]);
+    if (fit) out[c] = Robust(loss_, loss_scale_, T(T(d.w_fit[q][c]) * (g - T(d.target[q][c]))));
+    else out[c] = T(d.w_metric[q][c]) * (g - T(d.target[q][c]));
+  }
+}
+
+// The model's value for sample q: f_r, or f_r through the instrument's apertures.
+template <class T>
+Rgb<T> Engine::Prediction(const Bxdf<T>& b, const T* p, const Prepared& d, std::size_t q) const {
+  if (quad_) return synth::MeasuredBrdf(b, p, d.wi[q], d.wo[q], *quad_);
+  if (ladder_) {
+    const Eigen::Vector3d &wi = d.wi[q], &wo = d.wo[q];
+    if constexpr (std::is_same_v<T, double>) {
+      return synth::MeasureAdaptive(b, p, wi, wi, wo, wo, *ladder_, tolerance_).f;
+    } else {
+      // The levels the parameters' values stop at; the derivatives are taken with them held.
+      std::array<double, 64> value;
+      for (std::size_t k = 0; k < n_; ++k) value[k] = p[k].a;
+      const synth::AdaptiveMeasurement m =
+          synth::MeasureAdaptive(*b_, value.data(), wi, wi, wo, wo, *ladder_, tolerance_);
+      return synth::MeasuredAtLevels(b, p, wi, wo, *ladder_, m.source_level, m.detector_level);
+    }
+  }
+  const Vec3<T> wi = d.wi[q].template cast<T>(), wo = d.wo[q].template cast<T>();
+  return b.Eval(p, wi, wo);
+}
+
+Eigen::Array3d Engine::Predict(const std::vector<double>& p, const Prepared& d, std::size_t q) const {
+  return Prediction(*b_, p.data(), d, q);
+}
+
+bool Engine::EvalDouble(const double* u, const Prepared& d, std::size_t begin, std::size_t end, bool fit,
+                        double* r) const {
+  std::vector<double> p(n_);
+  ToUser(u, p.data());
+  if (quad_ || ladder_) {
+    for (std::size_t q = begin; q < end; ++q) SampleResiduals(*b_, p.data(), d, q, fit, r + 3 * (q - begin));
+  } else if (end > begin) {
+    // f_r of the whole range in one EvalBatch call (the model's vectorised kernel).
+    static_assert(sizeof(Eigen::Vector3d) == 3 * sizeof(double), "directions are packed rows of 3");
+    std::vector<double> f(3 * (end - begin));
+    b_->EvalBatch(p.data(), d.wi[begin].data(), 3, d.wo[begin].data(), 3, end - begin, f.data());
+    for (std::size_t q = begin; q < end; ++q)
+      ResidualsOf(Rgb<double>(Rgb<double>::Map(f.data() + 3 * (q - begin))), d, q, fit, r + 3 * (q - begin));
+  }
+  for (std::size_t k = 0; k < 3 * (end - begin); ++k)
+    if (!std::isfinite(r[k])) return false;
+  return true;
+}
+
+bool Engine::EvalJacobian(const double* u, const Prepared& d, std::size_t begin, std::size_t end, double* r,
+                          double* jac) const {
+  switch (jet_) {
+    case 4: return EvalJet<4>(*b4_, u, d, begin, end, r, jac);
+    case 8: return EvalJet<8>(*b8_, u, d, begin, end, r, jac);
+    case 16: return EvalJet<16>(*b16_, u, d, begin, end, r, jac);
+    default: return EvalJet<32>(*b32_, u, d, begin, end, r, jac);
+  }
+}
+
+template <int N>
+bool Engine::EvalJet(const Bxdf<Jet<N>>& b, const double* u, const Prepared& d, std::size_t begin,
+                     std::size_t end, double* r, double* jac) const {
+  std::array<Jet<N>, 64> uj, pj;
+  for (std::size_t k = 0; k < nf_; ++k) uj[k] = Jet<N>(u[k], static_cast<int>(slot_[k]));
+  ToUser(uj.data(), pj.data());
+  for (std::size_t q = begin; q < end; ++q) {
+    Jet<N> res[3];
+    SampleResiduals(b, pj.data(), d, q, true, res);
+    for (int c = 0; c < 3; ++c) {
+      const std::size_t row = 3 * (q - begin) + c;
+      r[row] = res[c].a;
+      if (!std::isfinite(r[row])) return false;
+      if (jac) {
+        for (std::size_t k = 0; k < nf_; ++k) {
+          const double v = channel_[k] < 0 || channel_[k] == c ? res[c].v[slot_[k]] : 0.0;
+          if (!std::isfinite(v)) return false;
+          jac[row * nf_ + k] = v;
+        }
+      }
+    }
+  }
+  return true;
+}
+
+}  // namespace brdfkit::fit

@@ -1,0 +1,282 @@
+// The fitter's parts, shared by its source files (not installed):
+//   data.cpp         datasets from tables and files
+//   metrics.cpp      the samples a fit uses, metric residuals, robust losses,
+//                    RMSE and relative errors
+//   engine.cpp       residuals and Jacobians of a model (Engine)
+//   constraints.cpp  fixed, tied and bounded parameters (Layout)
+//   solve.cpp        the Ceres problem and solver settings
+//   starts.cpp       starting points: multi-start and nested sub-sums
+//   uncertainty.cpp  covariance and identifiability
+//   fit.cpp          Fit: the steps in order
+#pragma once
+
+#include <ceres/ceres.h>
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_reduce.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstddef>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "data_synth/forward_model.h"
+#include "fit/fit.h"
+#include "fit/jet_models.h"
+
+namespace brdfkit::fit {
+
+// "a, b, c or d" of every name of an enumeration.
+template <typename E, typename NameOf>
+std::string Expected(const std::vector<E>& all, NameOf name_of) {
+  std::string s;
+  for (std::size_t i = 0; i < all.size(); ++i)
+    s += (i == 0 ? "" : i + 1 == all.size() ? " or " : ", ") + name_of(all[i]);
+  return s;
+}
+
+// ---------------------------------------------------------------------------
+// Samples and metrics (metrics.cpp).
+
+// Samples prepared for one metric: struct of arrays.
+struct Prepared {
+  std::vector<Eigen::Vector3d> wi, wo;
+  std::vector<double> cos_i;
+  std::vector<Eigen::Array3d> reference;  // the data's f_r
+  std::vector<Eigen::Array3d> target;    // G(reference)
+  std::vector<Eigen::Array3d> w_fit;     // weights of the fitted residuals
+  std::vector<Eigen::Array3d> w_metric;  // weights of the metric (no sigma)
+  std::size_t size() const { return wi.size(); }
+};
+
+struct Selection {
+  std::vector<std::size_t> index;  // samples used
+  std::size_t dropped_angle = 0;
+};
+
+// The samples within the options' angle cut.
+Selection Select(const Dataset& data, const Options& o);
+Prepared Prepare(const Dataset& data, const std::vector<std::size_t>& index, const Options& o);
+
+// Below this, cbrt is continued by its tangent: the derivative of cbrt is
+// infinite at 0 and Jets must stay finite.
+constexpr double kCbrtKnee = 1e-12;
+
+template <class T>
+T CbrtSafe(const T& x) {
+  using std::cbrt;
+  if (x < T(kCbrtKnee)) {
+    const double c = std::cbrt(kCbrtKnee);
+    return T(c) + (x - T(kCbrtKnee)) / T(3 * c * c);
+  }
+  return cbrt(x);
+}
+
+// The metric's transform G of a value v = f (l2, relative, cosine) or v = f cos_i.
+template <class T>
+T MetricTransform(Metric m, const T& f, double cos_i) {
+  using std::log1p;
+  switch (m) {
+    case Metric::kLog: return log1p(f * T(cos_i));
+    case Metric::kCbrt: return CbrtSafe(T(f * T(cos_i)));
+    default: return f;
+  }
+}
+
+// Robust loss applied per residual as r -> sign(r) sqrt(rho(r^2)), so that
+// the sum of squares is sum rho(r^2) while residuals stay grouped in blocks
+// (a Ceres LossFunction would act on a whole block's squared norm).
+template <class T>
+T Robust(Loss loss, double a, const T& r) {
+  using std::abs;
+  using std::log1p;
+  using std::sqrt;
+  if (loss == Loss::kNone) return r;
+  const T ar = abs(r);
+  if (loss == Loss::kHuber) {
+    if (ar <= T(a)) return r;
+    const T v = sqrt(T(2 * a) * ar - T(a * a));
+    return r < T(0) ? T(-v) : v;
+  }
+  // Cauchy: rho(s) = a^2 log(1 + s / a^2). Near 0 it is r itself to
+  // O(r^3), and the sqrt's derivative would be infinite at r = 0.
+  if (ar < T(1e-6 * a)) return r;
+  const T v = T(a) * sqrt(log1p(r * r / T(a * a)));
+  return r < T(0) ? T(-v) : v;
+}
+
+// ---------------------------------------------------------------------------
+// Fixed, tied and bounded parameters (constraints.cpp).
+
+// Which packed parameters the optimiser moves. Packed slot k is free slot
+// free_of[k] (tied slots share their leader's) or held at value[k]; the
+// free slots' bounds (user space) are the intersection of the bounds of the
+// packed slots they feed.
+struct Layout {
+  std::vector<int> free_of;           // packed -> free slot, -1: fixed
+  std::vector<double> value;          // packed: the value of a fixed slot
+  std::vector<int> leader;            // packed -> packed slot it follows (tie), -1
+  std::vector<double> lo, hi;         // packed bounds, user space
+  std::vector<std::size_t> rep;       // free -> first packed slot it feeds
+  std::size_t Free() const { return rep.size(); }
+  // Numbers the free slots in packed order.
+  void Renumber();
+};
+
+Layout AllFree(const ModelInfo& info);
+// Options::fix, tie and bounds applied to the model's table; throws
+// std::invalid_argument as CheckConstraints.
+Layout MakeLayout(const ModelInfo& info, const Options& o);
+
+// ---------------------------------------------------------------------------
+// Residuals of a model (engine.cpp).
+
+class Engine {
+ public:
+  Engine(const Evaluators& model, const Options& o, double loss_scale, const Layout& layout);
+
+  std::size_t n() const { return nf_; }  // free parameters
+  std::size_t packed() const { return n_; }
+  int jet() const { return jet_; }
+  const std::vector<bool>& log_mask() const { return log_; }
+  const Layout& layout() const { return layout_; }
+
+  // Internal (optimised, free) -> user parameters (packed).
+  std::vector<double> ToUser(const std::vector<double>& u) const;
+  std::vector<double> ToInternal(const std::vector<double>& p) const;
+
+  // The model's value for sample q at user parameters p: f_r, or f_r
+  // through the instrument's apertures.
+  Eigen::Array3d Predict(const std::vector<double>& p, const Prepared& d, std::size_t q) const;
+
+  // Residuals (3 per sample) over [begin, end), internal parameters u. fit:
+  // fit weights and robust loss; else the plain metric.
+  bool EvalDouble(const double* u, const Prepared& d, std::size_t begin, std::size_t end, bool fit,
+                  double* r) const;
+
+  // Residuals and their Jacobian (row-major, 3 (end - begin) x free parameters).
+  bool EvalJacobian(const double* u, const Prepared& d, std::size_t begin, std::size_t end, double* r,
+                    double* jac) const;
+
+ private:
+  template <class T>
+  void ToUser(const T* u, T* p) const;
+  template <class T>
+  void SampleResiduals(const Bxdf<T>& b, const T* p, const Prepared& d, std::size_t q, bool fit, T* out) const;
+  template <class T>
+  void ResidualsOf(const Rgb<T>& f, const Prepared& d, std::size_t q, bool fit, T* out) const;
+  template <class T>
+  Rgb<T> Prediction(const Bxdf<T>& b, const T* p, const Prepared& d, std::size_t q) const;
+  template <int N>
+  bool EvalJet(const Bxdf<Jet<N>>& b, const double* u, const Prepared& d, std::size_t begin, std::size_t end,
+               double* r, double* jac) const;
+
+  Metric metric_;
+  Loss loss_;
+  double loss_scale_;
+  Layout layout_;
+  std::size_t n_ = 0;   // packed parameters
+  std::size_t nf_ = 0;  // free parameters
+  std::vector<std::size_t> slot_;  // derivative slot of each free parameter
+  std::vector<int> channel_;       // its channel when the slot is shared by r, g, b; else -1
+  std::size_t n_slots_ = 0;
+  int jet_ = 8;
+  std::vector<bool> log_;
+  std::unique_ptr<Bxdf<double>> b_;
+  std::unique_ptr<Bxdf<Jet<4>>> b4_;
+  std::unique_ptr<Bxdf<Jet<8>>> b8_;
+  std::unique_ptr<Bxdf<Jet<16>>> b16_;
+  std::unique_ptr<Bxdf<Jet<32>>> b32_;
+  std::unique_ptr<synth::ApertureQuadrature> quad_;  // a fixed aperture order
+  std::unique_ptr<synth::ApertureLadder> ladder_;    // the automatic order: per-pair rules (MeasureAdaptive)
+  double tolerance_ = 0;                              // of the automatic order
+};
+
+// ---------------------------------------------------------------------------
+// One fit (fit.cpp).
+
+// Everything a fit's steps share: the options, the samples used, the
+// constraints, the engine without a robust loss, and the result so far.
+struct FitState {
+  const Evaluators& model;
+  const Dataset& data;
+  const Options& o;
+  const Selection& sel;
+  const Prepared& full;
+  const Layout& layout;
+  const Engine& plain;
+  bool sigma = false;
+  std::size_t chunk = 1;
+  std::function<double()> elapsed;  // seconds since the start of Fit
+  Result& res;
+};
+
+// ---------------------------------------------------------------------------
+// Sums over the samples (metrics.cpp).
+
+// The sum of part(begin, end) over [0, n) cut into chunks of at most
+// `grain`, on the TBB pool (the caller's arena sets the thread count); the
+// chunks and the order of their sums do not depend on the thread count.
+template <typename T, typename F>
+T ChunkedSum(std::size_t n, std::size_t grain, T zero, F&& part) {
+  return tbb::parallel_deterministic_reduce(
+      tbb::blocked_range<std::size_t>(0, n, std::max<std::size_t>(1, grain)), zero,
+      [&](const tbb::blocked_range<std::size_t>& r, T acc) { return T(acc + part(r.begin(), r.end())); },
+      [](const T& a, const T& b) { return T(a + b); });
+}
+
+// Root mean square of the plain metric residuals.
+double Rmse(const Engine& e, const Prepared& d, const std::vector<double>& u);
+// Relative errors of the fitted model (user parameters p) against the data,
+// over all samples and by theta_h band (Result::relative_error).
+void RelativeErrors(const Engine& e, const Prepared& d, const std::vector<double>& p, Result& res);
+
+// The robust loss's scale: Options::loss_scale, or when that leaves it to
+// the fit, from the data's sigma or the residuals at internal parameters u.
+double LossScale(const FitState& s, const std::vector<double>& u);
+
+// ---------------------------------------------------------------------------
+// The Ceres problem (solve.cpp).
+
+// Bounds of the internal (free) parameters: the intersection of the bounds
+// of the packed slots each one feeds.
+void Bounds(const Layout& layout, const std::vector<bool>& log_mask, std::vector<double>& lo,
+            std::vector<double>& hi);
+
+class TraceCallback final : public ceres::IterationCallback {
+ public:
+  TraceCallback(std::function<void(const ceres::IterationSummary&)> f) : f_(std::move(f)) {}
+  ceres::CallbackReturnType operator()(const ceres::IterationSummary& s) override {
+    f_(s);
+    return ceres::SOLVER_CONTINUE;
+  }
+
+ private:
+  std::function<void(const ceres::IterationSummary&)> f_;
+};
+
+// Builds the problem over `d` with internal parameters `u` (updated in place).
+void BuildProblem(ceres::Problem& problem, const Engine& e, const Prepared& d, std::size_t chunk,
+                  std::vector<double>& u);
+ceres::Solver::Options SolverOptions(const Options& o, LinearSolver solver, int max_iterations);
+
+// ---------------------------------------------------------------------------
+// Starting points (starts.cpp).
+
+// The internal parameters the final solve starts from: Options::initial, or
+// the best local optimum of the start search (Result::starts, trace,
+// local_optima and kept record it).
+std::vector<double> StartingPoint(const FitState& s);
+
+// ---------------------------------------------------------------------------
+// Uncertainty (uncertainty.cpp).
+
+// Result::stddev, correlation and covariance_message at the solution u of
+// `engine` (internal parameters); residual_variance scales the covariance
+// when the data carry no sigma.
+void Uncertainty(const FitState& s, const Engine& engine, const std::vector<double>& u, double residual_variance);
+
+}  // namespace brdfkit::fit

@@ -1,0 +1,251 @@
+// Residual metrics and robust losses: the samples a fit uses, their
+// targets and weights, and the RMSE and relative errors of a solution.
+#include <tbb/blocked_range.h>
+#include <tbb/info.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
+#include <algorithm>
+#include <cmath>
+#include <iterator>
+#include <stdexcept>
+
+#include "fit/fit_internal.h"
+
+namespace brdfkit::fit {
+
+const std::vector<Metric>& AllMetrics() {
+  static const std::vector<Metric> kAll = {Metric::kL2, Metric::kRelative, Metric::kCosine, Metric::kLog,
+                                           Metric::kCbrt};
+  return kAll;
+}
+
+Metric ParseMetric(const std::string& name) {
+  for (Metric m : AllMetrics())
+    if (name == MetricName(m)) return m;
+  throw std::invalid_argument("unknown metric '" + name + "' (expected " + Expected(AllMetrics(), MetricName) + ")");
+}
+
+std::string MetricName(Metric m) {
+  switch (m) {
+    case Metric::kL2: return "l2";
+    case Metric::kRelative: return "relative";
+    case Metric::kCosine: return "cosine";
+    case Metric::kLog: return "log";
+    case Metric::kCbrt: return "cbrt";
+  }
+  return "?";
+}
+
+const std::vector<Loss>& AllLosses() {
+  static const std::vector<Loss> kAll = {Loss::kNone, Loss::kHuber, Loss::kCauchy};
+  return kAll;
+}
+
+std::string LossName(Loss l) {
+  switch (l) {
+    case Loss::kNone: return "none";
+    case Loss::kHuber: return "huber";
+    case Loss::kCauchy: return "cauchy";
+  }
+  return "?";
+}
+
+Loss ParseLoss(const std::string& name) {
+  for (Loss l : AllLosses())
+    if (name == LossName(l)) return l;
+  throw std::invalid_argument("unknown loss '" + name + "' (expected " + Expected(AllLosses(), LossName) + ")");
+}
+
+namespace {
+
+// dG/df at f, for propagating sigma.
+double MetricSlope(Metric m, double f, double cos_i) {
+  switch (m) {
+    case Metric::kLog: return cos_i / (1.0 + f * cos_i);
+    case Metric::kCbrt: {
+      const double x = std::max(f * cos_i, kCbrtKnee);
+      const double c = std::cbrt(x);
+      return cos_i / (3 * c * c);
+    }
+    default: return 1.0;
+  }
+}
+
+double MaxThetaRad(const Options& o) {
+  const double deg = o.max_theta_deg > 0 ? o.max_theta_deg : (o.metric == Metric::kCosine ? 80.0 : 90.0);
+  return deg * kPi / 180.0;
+}
+
+}  // namespace
+
+Selection Select(const Dataset& data, const Options& o) {
+  Selection s;
+  const double cos_max = std::cos(MaxThetaRad(o));
+  // 1e-12 of slack keeps samples written at exactly the cut.
+  for (std::size_t k = 0; k < data.samples.size(); ++k) {
+    const Sample& x = data.samples[k];
+    if (x.wi.z() < cos_max - 1e-12 || x.wo.z() < cos_max - 1e-12 || !(x.wi.z() > 0 && x.wo.z() > 0)) {
+      ++s.dropped_angle;
+      continue;
+    }
+    s.index.push_back(k);
+  }
+  return s;
+}
+
+Prepared Prepare(const Dataset& data, const std::vector<std::size_t>& index, const Options& o) {
+  Prepared p;
+  const std::size_t n = index.size();
+  p.wi.resize(n);
+  p.wo.resize(n);
+  p.cos_i.resize(n);
+  p.target.resize(n);
+  p.reference.resize(n);
+  p.w_fit.resize(n);
+  p.w_metric.resize(n);
+  // Relative metric: a floor keeps near-zero reference values from
+  // dominating (and from dividing by zero).
+  Eigen::Array3d floor = Eigen::Array3d::Zero();
+  if (o.metric == Metric::kRelative) {
+    Eigen::Array3d mean = Eigen::Array3d::Zero();
+    for (std::size_t k : index) mean += data.samples[k].f.abs();
+    mean /= std::max<std::size_t>(n, 1);
+    floor = (1e-3 * mean).max(1e-300);
+  }
+  const bool sigma = data.has_sigma && o.use_sigma;
+  for (std::size_t q = 0; q < n; ++q) {
+    const Sample& s = data.samples[index[q]];
+    p.wi[q] = s.wi.normalized();
+    p.wo[q] = s.wo.normalized();
+    const double c = p.wi[q].z();
+    p.cos_i[q] = c;
+    p.reference[q] = s.f;
+    for (int ch = 0; ch < 3; ++ch) {
+      const double g = s.f[ch];
+      p.target[q][ch] = MetricTransform(o.metric, g, c);
+      double w = 1;
+      if (o.metric == Metric::kRelative) w = 1.0 / std::max(std::abs(g), floor[ch]);
+      if (o.metric == Metric::kCosine) w = c;
+      p.w_metric[q][ch] = w;
+      // Standard deviation of the metric residual, to first order in sigma.
+      p.w_fit[q][ch] = sigma ? 1.0 / (std::abs(MetricSlope(o.metric, g, c)) * s.sigma[ch]) : w;
+    }
+  }
+  return p;
+}
+
+// Root mean square of the plain metric residuals.
+double Rmse(const Engine& e, const Prepared& d, const std::vector<double>& u) {
+  if (d.size() == 0) return 0;
+  const double sum = ChunkedSum(d.size(), 1024, 0.0, [&](std::size_t begin, std::size_t end) {
+    double r[3];
+    double s = 0;
+    for (std::size_t q = begin; q < end; ++q) {
+      // Plain double evaluation of the metric residual.
+      e.EvalDouble(u.data(), d, q, q + 1, false, r);
+      s += r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
+    }
+    return s;
+  });
+  return std::sqrt(sum / (3.0 * d.size()));
+}
+
+namespace {
+
+// Quantile q of sorted values, linear between order statistics (position
+// q (n - 1), the usual sample quantile).
+double Quantile(const std::vector<double>& sorted, double q) {
+  const double pos = q * double(sorted.size() - 1);
+  const std::size_t i = static_cast<std::size_t>(pos);
+  if (i + 1 >= sorted.size()) return sorted.back();
+  return sorted[i] + (pos - double(i)) * (sorted[i + 1] - sorted[i]);
+}
+
+ErrorStats StatsOf(std::vector<double> v) {
+  ErrorStats s;
+  s.count = v.size();
+  if (v.empty()) return s;
+  std::sort(v.begin(), v.end());
+  s.median = Quantile(v, 0.5);
+  s.p95 = Quantile(v, 0.95);
+  s.max = v.back();
+  return s;
+}
+
+double Median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  const std::size_t mid = v.size() / 2;
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(mid), v.end());
+  return v[mid];
+}
+
+}  // namespace
+
+// Relative errors of the fitted model (user parameters p) against the data,
+// over all samples and by theta_h band (Result::relative_error).
+void RelativeErrors(const Engine& e, const Prepared& d, const std::vector<double>& p, Result& res) {
+  const std::size_t n = d.size();
+  std::vector<Eigen::Array3d> pred(n);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 256), [&](const tbb::blocked_range<std::size_t>& r) {
+    for (std::size_t q = r.begin(); q < r.end(); ++q) pred[q] = e.Predict(p, d, q);
+  });
+  Eigen::Array3d mean = Eigen::Array3d::Zero();
+  for (const Eigen::Array3d& g : d.reference) mean += g.abs();
+  // The floor keeps reference values near zero from dominating (as the relative metric).
+  const Eigen::Array3d floor = (1e-3 * mean / double(std::max<std::size_t>(n, 1))).max(1e-300);
+  constexpr std::size_t kBands = std::size(kThetaHBandEdgesDeg) - 1;
+  std::vector<double> all;
+  std::vector<std::vector<double>> bands(kBands);
+  all.reserve(3 * n);
+  for (std::size_t q = 0; q < n; ++q) {
+    const Eigen::Vector3d h = (d.wi[q] + d.wo[q]).normalized();
+    const double theta_h = std::acos(std::clamp(h.z(), -1.0, 1.0)) * 180 / kPi;
+    std::size_t b = 0;
+    while (b + 1 < kBands && theta_h >= kThetaHBandEdgesDeg[b + 1]) ++b;
+    for (int c = 0; c < 3; ++c) {
+      const double g = d.reference[q][c];
+      const double rel = std::abs(pred[q][c] - g) / std::max(std::abs(g), floor[c]);
+      all.push_back(rel);
+      bands[b].push_back(rel);
+    }
+  }
+  res.relative_error = StatsOf(std::move(all));
+  res.relative_error_bands.clear();
+  for (std::size_t b = 0; b < kBands; ++b)
+    if (!bands[b].empty())
+      res.relative_error_bands.push_back({kThetaHBandEdgesDeg[b], kThetaHBandEdgesDeg[b + 1], StatsOf(std::move(bands[b]))});
+}
+
+double LossScale(const FitState& s, const std::vector<double>& u) {
+  double loss_scale = s.o.loss_scale;
+  if (s.o.loss == Loss::kNone || loss_scale > 0) return loss_scale;
+  if (s.sigma) return 3.0;
+  std::vector<double> abs_r;
+  abs_r.reserve(3 * s.full.size());
+  double r[3];
+  for (std::size_t q = 0; q < s.full.size(); ++q) {
+    s.plain.EvalDouble(u.data(), s.full, q, q + 1, true, r);
+    for (double x : r) abs_r.push_back(std::abs(x));
+  }
+  // 1.4826 MAD estimates a normal standard deviation; a zero MAD
+  // (noiseless data) falls back to the RMS so the scale stays positive.
+  loss_scale = 3.0 * 1.4826 * Median(abs_r);
+  if (!(loss_scale > 0)) {
+    double sum = 0;
+    for (double x : abs_r) sum += x * x;
+    loss_scale = std::max(3.0 * std::sqrt(sum / std::max<std::size_t>(abs_r.size(), 1)), 1e-300);
+  }
+  return loss_scale;
+}
+
+double MetricRmse(const Model& model, const std::vector<double>& params, const Dataset& data,
+                  const Options& options) {
+  const Selection sel = Select(data, options);
+  const Prepared d = Prepare(data, sel.index, options);
+  const Engine e(ModelEvaluators(model), options, 1.0, AllFree(model.Info()));
+  tbb::task_arena arena(std::clamp(options.num_threads, 1, std::max(1, tbb::info::default_concurrency())));
+  return arena.execute([&] { return Rmse(e, d, e.ToInternal(params)); });
+}
+
+}  // namespace brdfkit::fit

@@ -1,0 +1,516 @@
+// Starting points of a fit: a given initial guess, the multi-start over
+// log-spaced widths solved on a subset of the samples, and for sums of lobes
+// the nested sub-sums (StartSearch).
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <map>
+#include <numeric>
+#include <random>
+#include <stdexcept>
+#include <utility>
+
+#include "fit/fit_internal.h"
+
+namespace brdfkit::fit {
+
+namespace {
+
+// A solution: packed user parameters and its cost on the samples it was solved on.
+struct Candidate {
+  std::vector<double> p;
+  double cost = std::numeric_limits<double>::infinity();
+  std::string origin;
+};
+
+// The packed slots of lobe k (its own and its weight).
+std::vector<std::size_t> LobeSlots(const Model& m, std::size_t k) {
+  std::vector<std::size_t> out;
+  for (std::size_t q = 0; q < m.LobeInfo(k).PackedSize(); ++q) out.push_back(m.LobeOffset(k) + q);
+  if (m.LobeWeightIndex(k) >= 0) out.push_back(std::size_t(m.LobeWeightIndex(k)));
+  return out;
+}
+
+// The slots that switch lobe k off at 0: its weight, or its colour
+// parameters whose range starts at 0.
+std::vector<std::size_t> SwitchSlots(const Model& m, std::size_t k) {
+  if (m.LobeWeightIndex(k) >= 0) return {std::size_t(m.LobeWeightIndex(k))};
+  std::vector<std::size_t> out;
+  const ModelInfo& li = m.LobeInfo(k);
+  for (std::size_t i = 0; i < li.params.size(); ++i)
+    if (li.params[i].colour && li.params[i].lower == 0)
+      for (int c = 0; c < 3; ++c) out.push_back(m.LobeOffset(k) + li.Offset(i) + std::size_t(c));
+  return out;
+}
+
+// First log-scale parameter of lobe k (its width), as a packed slot; -1 when none.
+std::ptrdiff_t WidthSlot(const Model& m, std::size_t k) {
+  const ModelInfo& li = m.LobeInfo(k);
+  for (std::size_t i = 0; i < li.params.size(); ++i)
+    if (li.params[i].scale == ParamInfo::Scale::kLog && !li.params[i].colour)
+      return std::ptrdiff_t(m.LobeOffset(k) + li.Offset(i));
+  return -1;
+}
+
+// Log-spaced start values of a log-scale parameter (packed slot k) within its bounds.
+std::vector<double> StartWidths(const Layout& layout, std::size_t k, double default_value, int starts_per_param) {
+  const int K = std::max(1, starts_per_param);
+  if (K == 1) return {std::clamp(default_value, layout.lo[k], layout.hi[k])};
+  double l = std::max(layout.lo[k] > 0 ? layout.lo[k] : 0.0, default_value / 30.0);
+  double h = std::min(layout.hi[k], default_value * 30.0);
+  if (!(l < h)) {  // bounds away from the default: span them
+    l = layout.lo[k] > 0 ? layout.lo[k] : 1e-3 * layout.hi[k];
+    h = layout.hi[k];
+  }
+  std::vector<double> out;
+  for (int q = 0; q < K; ++q) out.push_back(std::exp(std::log(l) + (std::log(h) - std::log(l)) * q / (K - 1)));
+  return out;
+}
+
+// Every combination of start widths of the free log-scale parameters (at
+// most 64; beyond that the diagonal of the grid), other parameters at the
+// layout's values. copy_of(slot) names the lobe whose width the parameter at
+// that packed slot is, when that lobe is one of several interchangeable
+// copies (empty otherwise): the copies' widths start in increasing order.
+std::vector<std::vector<double>> GridStarts(const ModelInfo& info, const Layout& layout, int starts_per_param,
+                                            const std::function<std::string(std::size_t)>& copy_of) {
+  std::vector<double> start = layout.value;
+  std::vector<std::size_t> slots, sizes;      // leading packed slot and size of each free log parameter
+  std::vector<std::vector<double>> values;
+  std::vector<std::string> lobe_of;           // copy_of its slot
+  std::size_t off = 0;
+  for (const ParamInfo& p : info.params) {
+    const std::size_t width = p.colour ? 3 : 1;
+    if (p.scale == ParamInfo::Scale::kLog && layout.free_of[off] >= 0 && layout.leader[off] < 0) {
+      slots.push_back(off);
+      sizes.push_back(width);
+      values.push_back(StartWidths(layout, off, p.default_value, starts_per_param));
+      lobe_of.push_back(copy_of(off));
+    }
+    off += width;
+  }
+  const auto ordered = [&](const std::vector<int>& c) {
+    for (std::size_t a = 0; a < c.size(); ++a)
+      for (std::size_t b = a + 1; b < c.size(); ++b)
+        if (!lobe_of[a].empty() && lobe_of[a] == lobe_of[b] && !(c[a] < c[b])) return false;
+    return true;
+  };
+  const int K = std::max(1, starts_per_param);
+  double total = 1;
+  for (std::size_t j = 0; j < slots.size(); ++j) total *= K;
+  std::vector<std::vector<int>> combos;
+  if (slots.empty()) {
+    combos.push_back({});
+  } else if (total <= 64) {
+    std::vector<int> c(slots.size(), 0);
+    while (true) {
+      if (ordered(c)) combos.push_back(c);
+      std::size_t j = 0;
+      while (j < c.size() && ++c[j] == K) c[j++] = 0;
+      if (j == c.size()) break;
+    }
+    if (combos.empty()) combos.push_back(std::vector<int>(slots.size(), 0));
+  } else {
+    for (int k = 0; k < K; ++k) combos.push_back(std::vector<int>(slots.size(), k));
+  }
+  std::vector<std::vector<double>> out;
+  for (const std::vector<int>& c : combos) {
+    std::vector<double> p = start;
+    for (std::size_t j = 0; j < slots.size(); ++j) {
+      const double v = values[j][std::size_t(std::min<int>(c[j], int(values[j].size()) - 1))];
+      for (std::size_t q = 0; q < sizes[j]; ++q) p[slots[j] + q] = v;
+    }
+    out.push_back(std::move(p));
+  }
+  return out;
+}
+
+// Internal parameters u clamped to the bounds of engine e.
+void ClampToBounds(const Engine& e, std::vector<double>& u) {
+  std::vector<double> lo, hi;
+  Bounds(e.layout(), e.log_mask(), lo, hi);
+  for (std::size_t j = 0; j < u.size(); ++j) u[j] = std::clamp(u[j], lo[j], hi[j]);
+}
+
+// One start: solves from internal parameters u (updated in place) over `d`
+// for at most `iterations`, traced as the next start under `stage`.
+ceres::Solver::Summary SolveStart(const FitState& s, const Engine& e, const Prepared& d, std::vector<double>& u,
+                                  int iterations, double ftol, const std::string& stage) {
+  ceres::Problem problem;
+  BuildProblem(problem, e, d, s.chunk, u);
+  ceres::Solver::Options so = SolverOptions(s.o, LinearSolver::kDenseQr, iterations);
+  so.function_tolerance = ftol;
+  so.update_state_every_iteration = s.sigma;  // the RMSE below reads u
+  const int start = ++s.res.starts;
+  TraceCallback callback([&](const ceres::IterationSummary& it) {
+    if (it.iteration > 0 && !it.step_is_successful) return;
+    // Without sigma the plain engine's cost is the metric's sum of squares / 2.
+    const double rmse = s.sigma ? Rmse(e, d, u) : std::sqrt(2 * it.cost / (3.0 * d.size()));
+    s.res.trace.push_back({it.iteration, s.elapsed(), it.cost, rmse, start, stage});
+  });
+  so.callbacks.push_back(&callback);
+  ceres::Solver::Summary summary;
+  ceres::Solve(so, &problem, &summary);
+  return summary;
+}
+
+// Multi-start and nested sub-sums of a sum of lobes (Fit's start strategy).
+// Level(mask) fits the sum with the lobes in `mask` switched off.
+class StartSearch {
+ public:
+  StartSearch(const Model& model, const FitState& s, const Prepared& subset)
+      : model_(model), s_(s), o_(s.o), base_(s.layout), full_(s.full), subset_(subset) {
+    plain_options_ = o_;
+    for (const ParamInfo& p : model.Info().params)
+      for (int c = 0; c < (p.colour ? 3 : 1); ++c) channel_.push_back(p.colour ? c : -1);
+    plain_options_.loss = Loss::kNone;
+    const std::size_t L = model.LobeCount();
+    const ModelInfo& info = model.Info();
+    for (std::size_t k = 0; k < L; ++k) {
+      // A lobe can be switched off (and swapped with a copy of itself) only
+      // when none of its parameters is fixed, tied or given bounds.
+      bool untouched = true;
+      for (std::size_t q : LobeSlots(model, k)) {
+        const bool leads = std::find(base_.leader.begin(), base_.leader.end(), int(q)) != base_.leader.end();
+        untouched = untouched && base_.free_of[q] >= 0 && base_.leader[q] < 0 && !leads;
+      }
+      std::size_t i = 0, off = 0;
+      for (; i < info.params.size(); ++i) {
+        for (std::size_t q : LobeSlots(model, k))
+          if (q >= off && q < off + (info.params[i].colour ? 3 : 1))
+            untouched = untouched && base_.lo[q] == info.params[i].lower && base_.hi[q] == info.params[i].upper;
+        off += info.params[i].colour ? 3 : 1;
+      }
+      untouched_.push_back(untouched);
+    }
+  }
+
+  Candidate Level(unsigned mask, bool top) {
+    if (auto it = memo_.find(mask); it != memo_.end()) return it->second;
+    const std::size_t L = model_.LobeCount();
+    const std::string name = ActiveSpec(mask);
+    const Layout layout = LevelLayout(mask);
+    Candidate best;
+    if (layout.Free() == 0) return memo_[mask] = best;
+    const Engine plain(evaluators_, plain_options_, 1.0, layout);
+    std::vector<std::size_t> active;
+    for (std::size_t k = 0; k < L; ++k)
+      if (!(mask >> k & 1u)) active.push_back(k);
+
+    // Nested sub-sums: each lobe switched off in turn (of copies of one
+    // lobe, only the last: the others give the same sub-sum).
+    std::vector<std::pair<Candidate, std::size_t>> kids;
+    if (o_.nested && active.size() >= 2)
+      for (auto it = active.rbegin(); it != active.rend(); ++it) {
+        const std::size_t k = *it;
+        if (!untouched_[k]) continue;
+        bool copy_done = false;
+        for (const auto& kid : kids)
+          copy_done = copy_done || (untouched_[kid.second] && model_.LobeInfo(kid.second).name == model_.LobeInfo(k).name);
+        if (copy_done) continue;
+        const Candidate c = Level(mask | (1u << k), false);
+        if (std::isfinite(c.cost)) kids.emplace_back(c, k);
+      }
+
+    // Starts on the subset: the multi-start grid over the widths, then each
+    // sub-sum's optimum with the lobe switched back on, at each start width
+    // and scaled to the sub-sum's residual.
+    std::vector<Candidate> starts;
+    for (std::vector<double>& p : GridStarts(layout, mask)) starts.push_back({std::move(p), 0, ""});
+    for (const auto& [kid, k] : kids)
+      for (std::vector<double>& p : Seeded(plain, kid.p, k, layout))
+        starts.push_back({std::move(p), 0, "(" + model_.LobePrefix(k) + " added to " + ActiveSpec(mask | (1u << k)) + ")"});
+    std::vector<Candidate> solved;
+    for (Candidate& s : starts) {
+      const std::string label = name + ": start " + std::to_string(s_.res.starts + 1);
+      Candidate c = Solve(plain, subset_, s.p, o_.start_iterations, 1e-8, label + " (subset)");
+      c.origin = label + (s.origin.empty() ? "" : " " + s.origin);
+      if (std::isfinite(c.cost)) solved.push_back(std::move(c));
+    }
+    std::sort(solved.begin(), solved.end(), [](const Candidate& a, const Candidate& b) { return a.cost < b.cost; });
+
+    // Every sub-sum's optimum (refined on all samples) and the best distinct
+    // optima of the subset, by their cost on all samples. The best is
+    // refined on all samples (at the top level by Fit's final solve); a
+    // refinement starts at that cost and only descends, so a sum is never
+    // worse than its nested sub-sums.
+    std::vector<Candidate> candidates;
+    for (const auto& [kid, k] : kids) candidates.push_back({kid.p, kid.cost, "nested " + ActiveSpec(mask | (1u << k))});
+    std::vector<Candidate> distinct;
+    for (const Candidate& c : solved) {
+      // The best four distinct subset optima: each costs a pass over all samples.
+      if (distinct.size() == 4) break;
+      if (Contains(plain, distinct, c.p)) continue;
+      distinct.push_back(c);
+      candidates.push_back({c.p, FullCost(plain, c.p), c.origin + " (subset optimum)"});
+    }
+    std::sort(candidates.begin(), candidates.end(), [](const Candidate& x, const Candidate& y) { return x.cost < y.cost; });
+    std::vector<Candidate> optima;
+    for (const Candidate& c : candidates)
+      if (std::isfinite(c.cost) && !Contains(plain, optima, c.p)) optima.push_back(c);
+    if (optima.empty()) return memo_[mask] = best;
+    if (top) {
+      for (const Candidate& c : optima) s_.res.local_optima.push_back({c.cost, c.p, c.origin});
+      best = optima.front();
+    } else {
+      best = Solve(plain, full_, optima.front().p, o_.max_iterations, o_.function_tolerance,
+                   name + ": refine (all samples)");
+      if (!(best.cost <= optima.front().cost)) best = optima.front();
+    }
+    return memo_[mask] = best;
+  }
+
+ private:
+  std::string ActiveSpec(unsigned mask) const {
+    std::string s;
+    for (std::size_t k = 0; k < model_.LobeCount(); ++k)
+      if (!(mask >> k & 1u)) s += (s.empty() ? "" : "+") + model_.LobePrefix(k);
+    return s;
+  }
+
+  // The base layout with the lobes in `mask` switched off and the rest of
+  // their parameters held (they have no effect).
+  Layout LevelLayout(unsigned mask) const {
+    Layout l = base_;
+    for (std::size_t k = 0; k < model_.LobeCount(); ++k) {
+      if (!(mask >> k & 1u)) continue;
+      for (std::size_t q : LobeSlots(model_, k)) l.free_of[q] = -1;
+      for (std::size_t q : SwitchSlots(model_, k)) l.value[q] = 0;
+    }
+    l.Renumber();
+    return l;
+  }
+
+  // Whether p is within 1e-3 (internal units: relative for widths) of a solution in `set`.
+  bool Contains(const Engine& e, const std::vector<Candidate>& set, const std::vector<double>& p) const {
+    const std::vector<double> u = e.ToInternal(p);
+    for (const Candidate& c : set) {
+      const std::vector<double> v = e.ToInternal(c.p);
+      double d = 0;
+      for (std::size_t j = 0; j < u.size(); ++j) d = std::max(d, std::abs(u[j] - v[j]));
+      if (d < 1e-3) return true;
+    }
+    return false;
+  }
+
+  // Copies of one lobe, none touched by fix/tie/bounds, all active: sorted
+  // by width so that the symmetric copies of a solution are one.
+  void Canonical(std::vector<double>& p, unsigned mask) const {
+    const std::size_t L = model_.LobeCount();
+    std::vector<bool> done(L, false);
+    for (std::size_t a = 0; a < L; ++a) {
+      if (done[a] || (mask >> a & 1u) || !untouched_[a] || WidthSlot(model_, a) < 0) continue;
+      std::vector<std::size_t> group;
+      for (std::size_t b = a; b < L; ++b)
+        if (!(mask >> b & 1u) && untouched_[b] && model_.LobeInfo(b).name == model_.LobeInfo(a).name) {
+          group.push_back(b);
+          done[b] = true;
+        }
+      if (group.size() < 2) continue;
+      std::vector<std::vector<double>> blocks;
+      for (std::size_t k : group) {
+        std::vector<double> v;
+        for (std::size_t q : LobeSlots(model_, k)) v.push_back(p[q]);
+        blocks.push_back(v);
+      }
+      const std::size_t w = std::size_t(WidthSlot(model_, a)) - model_.LobeOffset(a);
+      std::stable_sort(blocks.begin(), blocks.end(), [w](const auto& x, const auto& y) { return x[w] < y[w]; });
+      for (std::size_t g = 0; g < group.size(); ++g) {
+        const std::vector<std::size_t> slots = LobeSlots(model_, group[g]);
+        for (std::size_t q = 0; q < slots.size(); ++q) p[slots[q]] = blocks[g][q];
+      }
+    }
+  }
+
+  // The grid starts of the level: interchangeable copies of one lobe (untouched,
+  // active) start in increasing order of width.
+  std::vector<std::vector<double>> GridStarts(const Layout& layout, unsigned mask) const {
+    return fit::GridStarts(model_.Info(), layout, o_.starts_per_param, [&](std::size_t slot) {
+      for (std::size_t k = 0; k < model_.LobeCount(); ++k)
+        if (WidthSlot(model_, k) == std::ptrdiff_t(slot) && untouched_[k] && !(mask >> k & 1u))
+          return model_.LobeInfo(k).name;
+      return std::string();
+    });
+  }
+
+  // The sub-sum's optimum p (lobe k off) with lobe k switched back on at
+  // each start width, its switch scaled by least squares to the residual
+  // the sub-sum leaves on the subset.
+  std::vector<std::vector<double>> Seeded(const Engine& e, const std::vector<double>& p, std::size_t k,
+                                          const Layout& layout) const {
+    const ModelInfo& info = model_.Info();
+    const std::ptrdiff_t ws = WidthSlot(model_, k);
+    std::vector<double> widths = {ws >= 0 ? p[std::size_t(ws)] : 0.0};
+    if (ws >= 0) {
+      std::size_t i = 0, off = 0;
+      while (off + (info.params[i].colour ? 3 : 1) <= std::size_t(ws)) off += info.params[i++].colour ? 3 : 1;
+      widths = StartWidths(layout, std::size_t(ws), info.params[i].default_value, o_.starts_per_param);
+    }
+    const std::vector<std::size_t> sw = SwitchSlots(model_, k);
+    const std::vector<double> defaults = info.Defaults();
+    std::vector<std::vector<double>> out;
+    for (double width : widths) {
+      std::vector<double> on = p;
+      for (std::size_t q : LobeSlots(model_, k)) on[q] = defaults[q];
+      if (ws >= 0) on[std::size_t(ws)] = width;
+      // Per channel for colour switches, one scale for a weight.
+      Eigen::Array3d rg = Eigen::Array3d::Zero(), gg = Eigen::Array3d::Zero();
+      for (std::size_t q = 0; q < subset_.size(); ++q) {
+        const Eigen::Array3d base = e.Predict(p, subset_, q), with = e.Predict(on, subset_, q);
+        const Eigen::Array3d g = with - base, r = subset_.reference[q] - base;
+        rg += r * g;
+        gg += g * g;
+      }
+      for (std::size_t q : sw) {
+        const int c = channel_[q];  // -1: a weight, scaling all channels
+        const double num = c < 0 ? rg.sum() : rg[c], den = c < 0 ? gg.sum() : gg[c];
+        const double scale = den > 0 ? num / den : 0.0;
+        // A small positive floor: at 0 the lobe's other parameters have no gradient.
+        on[q] = std::clamp(on[q] * std::max(scale, 1e-3), layout.lo[q], layout.hi[q]);
+      }
+      out.push_back(std::move(on));
+    }
+    return out;
+  }
+
+  // Cost (half the sum of squared residuals) of p on all samples.
+  double FullCost(const Engine& e, const std::vector<double>& p) const {
+    const std::vector<double> u = e.ToInternal(p);
+    constexpr std::size_t chunk = 256;
+    return ChunkedSum(full_.size(), chunk, 0.0, [&](std::size_t begin, std::size_t end) {
+      double r[3 * chunk];
+      // A non-finite residual makes the point unusable.
+      if (!e.EvalDouble(u.data(), full_, begin, end, true, r)) return std::numeric_limits<double>::infinity();
+      double s = 0;
+      for (std::size_t k = 0; k < 3 * (end - begin); ++k) s += 0.5 * r[k] * r[k];
+      return s;
+    });
+  }
+
+  // Solves from p over `d` for at most `iterations`; the solution is put in
+  // canonical order.
+  Candidate Solve(const Engine& e, const Prepared& d, const std::vector<double>& p, int iterations, double ftol,
+                  const std::string& stage) {
+    std::vector<double> u = e.ToInternal(p);
+    ClampToBounds(e, u);
+    const ceres::Solver::Summary summary = SolveStart(s_, e, d, u, iterations, ftol, stage);
+    Candidate c;
+    if (!summary.IsSolutionUsable()) return c;
+    c.p = e.ToUser(u);
+    c.cost = summary.final_cost;
+    unsigned mask = 0;
+    for (std::size_t k = 0; k < model_.LobeCount(); ++k)
+      for (std::size_t q : SwitchSlots(model_, k))
+        if (e.layout().free_of[q] < 0 && e.layout().value[q] == 0 && untouched_[k]) mask |= 1u << k;
+    Canonical(c.p, mask);
+    return c;
+  }
+
+  const Model& model_;
+  const ModelEvaluators evaluators_{model_};
+  const FitState& s_;
+  const Options& o_;
+  Options plain_options_;
+  const Layout& base_;
+  const Prepared& full_;
+  const Prepared& subset_;
+  std::vector<bool> untouched_;
+  std::vector<int> channel_;  // packed slot -> channel of a colour parameter, else -1
+  std::map<unsigned, Candidate> memo_;
+};
+
+// A fixed pseudo-random choice of `count` of the samples used, so runs repeat.
+std::vector<std::size_t> SubsetIndex(const FitState& s, std::size_t count) {
+  std::vector<std::size_t> sub(s.full.size());
+  std::iota(sub.begin(), sub.end(), std::size_t(0));
+  if (sub.size() > count) {
+    std::mt19937_64 rng(20050620);
+    for (std::size_t k = 0; k < count; ++k) {
+      std::uniform_int_distribution<std::size_t> pick(k, sub.size() - 1);
+      std::swap(sub[k], sub[pick(rng)]);
+    }
+    sub.resize(count);
+    std::sort(sub.begin(), sub.end());
+  }
+  std::vector<std::size_t> out(sub.size());
+  for (std::size_t k = 0; k < sub.size(); ++k) out[k] = s.sel.index[sub[k]];
+  return out;
+}
+
+[[noreturn]] void NoFiniteStart(const FitState& s) {
+  throw std::runtime_error("no starting point gave a finite residual for model '" + s.model.Info().name + "'");
+}
+
+// Sums: nested sub-sums and the multi-start, each refined on all samples
+// (StartSearch); the best of these local optima is kept.
+std::vector<double> SearchSum(const FitState& s, const Model& sum) {
+  const Prepared subset = Prepare(s.data, SubsetIndex(s, s.o.start_subset), s.o);
+  StartSearch search(sum, s, subset);
+  const Candidate best = search.Level(0, true);
+  if (!std::isfinite(best.cost)) NoFiniteStart(s);
+  for (std::size_t q = 0; q < s.res.local_optima.size(); ++q)
+    if (s.res.local_optima[q].params == best.p) s.res.kept = int(q);
+  std::vector<double> u = s.plain.ToInternal(best.p);
+  ClampToBounds(s.plain, u);
+  return u;
+}
+
+// One lobe (or a model outside the registry): the grid starts, each solved
+// on the subset, and the best of them.
+std::vector<double> MultiStart(const FitState& s) {
+  const Prepared subset = Prepare(s.data, SubsetIndex(s, s.o.start_subset), s.o);
+  const auto no_copies = [](std::size_t) { return std::string(); };
+  std::vector<double> best_u;
+  double best_cost = std::numeric_limits<double>::infinity();
+  for (const std::vector<double>& p : GridStarts(s.model.Info(), s.layout, s.o.starts_per_param, no_copies)) {
+    std::vector<double> u = s.plain.ToInternal(p);
+    ClampToBounds(s.plain, u);
+    const std::string stage = "start " + std::to_string(s.res.starts + 1) + " (subset)";
+    const ceres::Solver::Summary summary = SolveStart(s, s.plain, subset, u, s.o.start_iterations, 1e-8, stage);
+    if (summary.IsSolutionUsable() && summary.final_cost < best_cost) {
+      best_cost = summary.final_cost;
+      best_u = u;
+    }
+  }
+  if (best_u.empty()) NoFiniteStart(s);
+  return best_u;
+}
+
+// Coarse to fine: on large tables the best start is first refined on a
+// 16x larger subset, so the full solve (whose iterations cost the most)
+// starts near its optimum and needs only a few.
+void RefineOnLargerSubset(const FitState& s, std::vector<double>& best_u) {
+  const Prepared middle = Prepare(s.data, SubsetIndex(s, 16 * s.o.start_subset), s.o);
+  ceres::Problem problem;
+  std::vector<double> u = best_u;
+  BuildProblem(problem, s.plain, middle, s.chunk, u);
+  ceres::Solver::Options so = SolverOptions(s.o, LinearSolver::kDenseQr, s.o.max_iterations);
+  so.function_tolerance = 1e-10;
+  ceres::Solver::Summary summary;
+  ceres::Solve(so, &problem, &summary);
+  if (summary.IsSolutionUsable()) best_u = u;
+}
+
+}  // namespace
+
+std::vector<double> StartingPoint(const FitState& s) {
+  const Options& o = s.o;
+  if (!o.initial.empty()) {
+    const ModelInfo& info = s.model.Info();
+    if (o.initial.size() != info.PackedSize())
+      throw std::invalid_argument("initial guess has " + std::to_string(o.initial.size()) + " values, model '" +
+                                  info.name + "' needs " + std::to_string(info.PackedSize()));
+    std::vector<double> u = s.plain.ToInternal(o.initial);
+    ClampToBounds(s.plain, u);
+    s.res.starts = 1;
+    return u;
+  }
+  // Only a registered model's sum has lobes to switch off and add back.
+  const Model* sum = s.model.AsModel();
+  if (sum && sum->LobeCount() >= 2) return SearchSum(s, *sum);
+  std::vector<double> u = MultiStart(s);
+  if (s.full.size() > 64 * o.start_subset) RefineOnLargerSubset(s, u);
+  return u;
+}
+
+}  // namespace brdfkit::fit
