@@ -170,6 +170,15 @@ std::string SynthHtml(const json& r) {
 }
 
 std::string AlbedoHtml(const json& r) {
+  if (r.contains("preset")) {
+    std::string h = "<p>" + Esc(r.at("preset").get<std::string>()) + "'s table set, largest quadrature error estimate " +
+                    Num(r.at("max_error"), "%.2g") + ":</p>\n<ul>\n";
+    for (const json& t : r.at("tables"))
+      h += "<li><code>" + Esc(t.at("name").get<std::string>()) + "</code> (" +
+           std::to_string(t.at("entries").get<long long>()) + " entries): " +
+           Esc(t.at("definition").get<std::string>()) + "</li>\n";
+    return h + "</ul>";
+  }
   std::string axes;
   for (const json& a : r.at("axes"))
     axes += (axes.empty() ? "" : ", ") + Esc(a.at("name").get<std::string>()) + " (" +

@@ -18,6 +18,7 @@
 #include "data_synth/outputs.h"
 #include "fit/fit.h"
 #include "validate/albedo.h"
+#include "validate/presets.h"
 #include "validate/check.h"
 #include "validate/plot.h"
 
@@ -147,7 +148,78 @@ TaskOutcome CheckTask::Run(const TaskSpec& spec, const RunContext& ctx) const {
 
 // ------------------------------------------------------------------ albedo
 
+// A renderer's table set: its files, and a figure per table (a heat map of
+// its first two axes at the middle node of a third; a line over one axis;
+// one per channel of a colour table).
+TaskOutcome AlbedoTask::RunPreset(const TaskSpec& spec, const RunContext& ctx) const {
+  TaskOutcome o;
+  TaskDir dir(ctx, spec.name);
+  validate::PresetOptions po;
+  po.abs_tolerance = tolerance;
+  po.filament_size = filament_size;
+  po.tables = tables;
+  ThreadedProgress progress("albedo " + spec.name, ctx.quiet);
+  po.progress = progress.Callback();
+  const validate::Preset p = validate::BuildPreset(preset, po);
+  progress.Finish();
+  const double accepted = std::max(accept_error, tolerance);
+  const std::string misses = validate::DescribePresetMisses(p, accepted);
+  if (!misses.empty()) throw ResultError("task '" + spec.name + "': " + misses + "\nSet \"accept_error\" to accept them.");
+  const bool filament = preset == "filament";
+  for (const std::string& f : formats) {
+    if (f == "csv") {
+      validate::WritePresetCsv(p, dir.Abs("tables.csv"));
+      o.files.push_back(dir.Rel("tables.csv"));
+    } else if (f == "exr") {
+      validate::WritePresetExr(p, dir.Abs("tables.exr"));
+      o.files.push_back(dir.Rel("tables.exr"));
+    } else if (f == "header") {
+      const std::vector<std::string> names =
+          filament ? std::vector<std::string>{"dfg.h", "dfg.inc"} : std::vector<std::string>{"shader_tables.h"};
+      for (const std::string& name : names) {
+        validate::WritePresetHeader(p, dir.Abs(name));
+        o.files.push_back(dir.Rel(name));
+      }
+    }
+  }
+  json tables_j = json::array();
+  for (const validate::PresetTable& t : p.tables) {
+    double worst = 0;
+    for (double e : t.error) worst = std::max(worst, e);
+    tables_j.push_back({{"name", t.name}, {"definition", t.definition}, {"entries", t.value.size()}, {"max_error", worst}});
+    const std::size_t nc = t.channels.size(), n0 = t.axes[0].coordinate.size();
+    if (t.axes.size() == 1) {
+      validate::Series s{t.channels[0], t.axes[0].coordinate, {}};
+      for (std::size_t i = 0; i < n0; ++i) s.y.push_back(t.value[i * nc]);
+      validate::LinePlot(dir.Abs(t.name + ".svg"), t.name, t.axes[0].name, t.channels[0], {s}, false, false);
+      o.figures.push_back({t.name, dir.Rel(t.name + ".svg"), t.definition + "."});
+      continue;
+    }
+    const std::size_t n1 = t.axes[1].coordinate.size();
+    const std::size_t k2 = t.axes.size() > 2 ? t.axes[2].coordinate.size() / 2 : 0;
+    std::string slice;
+    if (t.axes.size() > 2) slice = " at " + t.axes[2].name + " = " + FormatDouble(t.axes[2].coordinate[k2]);
+    for (std::size_t c = 0; c < nc; ++c) {
+      std::vector<double> v(n0 * n1);
+      for (std::size_t i1 = 0; i1 < n1; ++i1)
+        for (std::size_t i0 = 0; i0 < n0; ++i0) v[i1 * n0 + i0] = t.value[((k2 * n1 + i1) * n0 + i0) * nc + c];
+      const std::string name = t.name + (nc > 1 ? "_" + t.channels[c] : "");
+      validate::HeatMap(dir.Abs(name + ".svg"), name + slice, t.axes[0].name, t.axes[1].name, t.axes[0].coordinate,
+                        t.axes[1].coordinate, v, {t.channels[c], NAN, NAN, false});
+      o.figures.push_back({name, dir.Rel(name + ".svg"),
+                           t.definition + (nc > 1 ? " (channel " + t.channels[c] + ")" : "") + slice +
+                               "; largest error estimate " + FormatDouble(worst) + "."});
+    }
+  }
+  std::size_t entries = 0;
+  for (const validate::PresetTable& t : p.tables) entries += t.value.size();
+  o.result = {{"preset", preset},      {"model", "preset " + preset}, {"entries", entries},
+              {"tables", tables_j},    {"max_error", p.max_error},    {"table_seconds", p.seconds}};
+  return o;
+}
+
 TaskOutcome AlbedoTask::Run(const TaskSpec& spec, const RunContext& ctx) const {
+  if (!preset.empty()) return RunPreset(spec, ctx);
   const AlbedoTask& t = *this;
   TaskOutcome o;
   TaskDir dir(ctx, spec.name);

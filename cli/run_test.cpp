@@ -235,6 +235,35 @@ TEST(Run, MeasuredMaterialsOfEveryFormat) {
 
 // Each malformed scene: exit 2, a message naming the file and the key path
 // (or line), and no output folder: nothing started.
+// A renderer's table set in a scene: its files, a figure per table and
+// channel, and the result's error.
+TEST(Run, APresetTaskWritesTheRenderersFilesAndAFigurePerTable) {
+  const fs::path d = FreshDir("albedo-preset");
+  const json scene = {
+      {"tasks",
+       {{{"name", "dfg"}, {"type", "albedo"}, {"preset", "filament"}, {"filament_size", 8}},
+        {{"name", "cycles"}, {"type", "albedo"}, {"preset", "cycles"}, {"tables", {"table_ggx_Eavg", "table_ggx_E"}},
+         {"formats", {"header", "csv"}}}}}};
+  WriteText(d / "scene.json", scene.dump(2));
+  const CliRun r = Brdfkit("run " + (d / "scene.json").string() + " --out " + (d / "out").string() + " --quiet");
+  ASSERT_EQ(r.code, 0) << r.out;
+  for (const char* f : {"dfg/dfg.h", "dfg/dfg.inc", "dfg/tables.csv", "dfg/tables.exr", "dfg/DFG_LUT_R.svg",
+                        "dfg/DFG_LUT_G.svg", "dfg/DFG_LUT_B.svg", "cycles/shader_tables.h", "cycles/tables.csv",
+                        "cycles/table_ggx_E.svg", "cycles/table_ggx_Eavg.svg"})
+    EXPECT_TRUE(fs::exists(d / "out" / f)) << f;
+  EXPECT_FALSE(fs::exists(d / "out" / "cycles" / "tables.exr")) << "not asked for";
+  const json results = json::parse(ReadText(d / "out" / "results.json"));
+  ASSERT_EQ(results.at("tasks").size(), 2u);
+  for (const json& t : results.at("tasks")) {
+    const json& res = t.at("result");
+    EXPECT_LE(res.at("max_error").get<double>(), 1e-7) << t.dump();
+    EXPECT_EQ(res.at("preset"), t.at("name") == "dfg" ? "filament" : "cycles");
+  }
+  // The header holds the tables in Cycles' order, whatever the scene's order.
+  const std::string h = ReadText(d / "out" / "cycles" / "shader_tables.h");
+  EXPECT_LT(h.find("table_ggx_E[1024]"), h.find("table_ggx_Eavg[32]"));
+}
+
 TEST(Run, MalformedScenesAreRejectedBeforeAnyWork) {
   const fs::path d = FreshDir("malformed");
   struct Case {
@@ -261,6 +290,12 @@ TEST(Run, MalformedScenesAreRejectedBeforeAnyWork) {
   json cycle = SmallScene();
   cycle["tasks"][2]["material"] = "fitted";
   json unknown_output = SmallScene({"nothing_like_this"});
+  json preset_and_model = SmallScene();
+  preset_and_model["tasks"][0]["preset"] = "cycles";
+  json bad_table = SmallScene();
+  bad_table["tasks"][0] = {{"name", "t"}, {"type", "albedo"}, {"preset", "cycles"}, {"tables", {"table_ggx_F"}}};
+  json bad_preset = SmallScene();
+  bad_preset["tasks"][0] = {{"name", "t"}, {"type", "albedo"}, {"preset", "unreal"}};
   const std::vector<Case> cases = {
       {"bad_json", "{\n  \"tasks\": [\n    {\"name\": \"a\",, }\n  ]\n}\n", "line 3"},
       {"overflow", "{\"tasks\": [{\"name\": \"a\", \"type\": \"check\", \"samples\": 1E60799}]}", "number overflow"},
@@ -274,6 +309,9 @@ TEST(Run, MalformedScenesAreRejectedBeforeAnyWork) {
       {"typo_model", typo_model.dump(2), "tasks[4].model"},
       {"cycle", cycle.dump(2), "circular dependency"},
       {"unknown_output", unknown_output.dump(2), "outputs[0]: no task named 'nothing_like_this'"},
+      {"preset_and_model", preset_and_model.dump(2), "tasks[0].model: a preset has its own models and axes"},
+      {"bad_table", bad_table.dump(2), "tasks[0].tables[0]: preset 'cycles' has no table 'table_ggx_F'"},
+      {"bad_preset", bad_preset.dump(2), "tasks[0].preset: unknown table preset 'unreal'"},
   };
   for (const Case& c : cases) {
     const fs::path scene = d / (c.name + ".json");

@@ -15,6 +15,7 @@
 #include "fit/fit.h"
 #include "formats/convert.h"
 #include "validate/albedo.h"
+#include "validate/presets.h"
 #include "validate/integrators.h"
 
 namespace brdfkit::cli {
@@ -322,6 +323,33 @@ void CheckTask::Parse(SceneReader& r, const Scene& s) {
 
 void AlbedoTask::Parse(SceneReader& r, const Scene& /*scene*/) {
   AlbedoTask& t = *this;
+  t.formats = r.Strings("formats", false);
+  if (!r.Has("formats")) t.formats = {"csv", "exr", "header"};
+  for (const std::string& f : t.formats)
+    if (!kAlbedoFormats.count(f)) r.FailKey("formats", "unknown format '" + f + "' (expected csv, exr, header)");
+  if (r.Has("preset")) {
+    t.preset = r.String("preset");
+    const std::vector<std::string> presets = validate::PresetNames();
+    if (std::find(presets.begin(), presets.end(), t.preset) == presets.end())
+      r.FailKey("preset", "unknown table preset '" + t.preset + "' (expected cycles or filament)");
+    for (const char* key : {"model", "params", "axes", "nodes", "part"})
+      if (r.Has(key)) r.FailKey(key, "a preset has its own models and axes: give \"preset\" or \"model\", not both");
+    const std::vector<std::string> names = validate::PresetTableNames(t.preset);
+    t.tables = r.Strings("tables", false);
+    for (std::size_t i = 0; i < t.tables.size(); ++i)
+      if (std::find(names.begin(), names.end(), t.tables[i]) == names.end()) {
+        std::string list;
+        for (const std::string& n : names) list += (list.empty() ? "" : ", ") + n;
+        r.FailKey("tables[" + std::to_string(i) + "]",
+                  "preset '" + t.preset + "' has no table '" + t.tables[i] + "' (its tables: " + list + ")");
+      }
+    t.filament_size = int(r.Integer("filament_size", 128, 2, 4096));
+    t.tolerance = r.Number("tolerance", 1e-7, 1e-12, 1e-2);
+    t.accept_error = r.Number("accept_error", t.accept_error, 1e-12, 1e3);
+    return;
+  }
+  for (const char* key : {"tables", "filament_size"})
+    if (r.Has(key)) r.FailKey(key, "only with \"preset\"");
   const Model model = ParseModelAt(r, "model");
   if (!model.Info().settings.empty()) r.FailKey("model", "albedo tables are made of analytic models");
   t.model = model.Spec();
@@ -347,10 +375,6 @@ void AlbedoTask::Parse(SceneReader& r, const Scene& /*scene*/) {
   } catch (const std::exception& e) {
     r.FailKey("part", e.what());
   }
-  t.formats = r.Strings("formats", false);
-  if (!r.Has("formats")) t.formats = {"csv", "exr", "header"};
-  for (const std::string& f : t.formats)
-    if (!kAlbedoFormats.count(f)) r.FailKey("formats", "unknown format '" + f + "' (expected csv, exr, header)");
 }
 
 void SynthTask::Parse(SceneReader& r, const Scene& s) {
@@ -495,6 +519,7 @@ nlohmann::json SceneNames() {
               {"instrument_types", {"gonioreflectometer", "camera"}},
               {"albedo_nodes", {"uniform", "gauss"}},
               {"albedo_parts", validate::PartNames()},
+              {"albedo_presets", validate::PresetNames()},
               {"albedo_formats", kAlbedoFormats},
               {"synth_formats", kSynthFormats},
               {"metrics", metrics},

@@ -77,9 +77,14 @@ struct AlbedoTask : TaskTypeBase {
   double accept_error = 0;  // largest accepted error estimate (0: the tolerance)
   std::string part = "total";  // a transmitting model's entries: total, reflected or transmitted
   std::vector<std::string> formats;  // csv, exr, header
+  // A renderer's table set instead of a model and axes (validate/presets.h).
+  std::string preset;
+  std::vector<std::string> tables;  // only these of the preset's tables (empty: all)
+  int filament_size = 128;
 
   void Parse(SceneReader& r, const Scene& s);
   TaskOutcome Run(const TaskSpec& t, const RunContext& ctx) const;
+  TaskOutcome RunPreset(const TaskSpec& t, const RunContext& ctx) const;
 };
 
 struct SynthTask : TaskTypeBase {

@@ -357,20 +357,39 @@ void AddFilament(std::vector<PresetTable>& tables, std::vector<Job>& jobs, const
 
 std::vector<std::string> PresetNames() { return {"cycles", "filament"}; }
 
+namespace {
+// The tables of a preset and the jobs that fill them.
+void Plan(const std::string& name, const PresetOptions& options, std::vector<PresetTable>& tables,
+          std::vector<Job>& jobs) {
+  if (name == "cycles") {
+    AddCycles(tables, jobs, options);
+  } else if (name == "filament") {
+    if (options.filament_size < 2 || options.filament_size > 4096)
+      throw ModelError("filament table size " + std::to_string(options.filament_size) + " is outside [2, 4096]");
+    AddFilament(tables, jobs, options);
+  } else {
+    throw ModelError("unknown table preset '" + name + "' (presets: cycles, filament)");
+  }
+}
+}  // namespace
+
+std::vector<std::string> PresetTableNames(const std::string& name) {
+  PresetOptions o;
+  o.filament_size = 2;
+  std::vector<PresetTable> tables;
+  std::vector<Job> jobs;
+  Plan(name, o, tables, jobs);
+  std::vector<std::string> names;
+  for (const PresetTable& t : tables) names.push_back(t.name);
+  return names;
+}
+
 Preset BuildPreset(const std::string& name, const PresetOptions& options) {
   const auto start = std::chrono::steady_clock::now();
   Preset p;
   p.name = name;
   std::vector<Job> jobs;
-  if (name == "cycles") {
-    AddCycles(p.tables, jobs, options);
-  } else if (name == "filament") {
-    if (options.filament_size < 2 || options.filament_size > 4096)
-      throw ModelError("filament table size " + std::to_string(options.filament_size) + " is outside [2, 4096]");
-    AddFilament(p.tables, jobs, options);
-  } else {
-    throw ModelError("unknown table preset '" + name + "' (presets: cycles, filament)");
-  }
+  Plan(name, options, p.tables, jobs);
   if (!options.tables.empty()) {
     std::string names;
     for (const PresetTable& t : p.tables) names += (names.empty() ? "" : ", ") + t.name;

@@ -80,8 +80,11 @@ struct PresetOptions {
 
 // "cycles", "filament".
 std::vector<std::string> PresetNames();
-// Throws ModelError for an unknown name, naming the presets.
+// Throws ModelError for an unknown name, naming the presets, or for a name
+// in options.tables the preset does not have, naming its tables.
 Preset BuildPreset(const std::string& name, const PresetOptions& options = {});
+// The array names of a preset's tables, in its order.
+std::vector<std::string> PresetTableNames(const std::string& name);
 
 // Entries whose error estimate exceeds tolerance, as "table[index] channel:
 // error" lines (the worst `shown`), or an empty string.
