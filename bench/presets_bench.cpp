@@ -9,7 +9,7 @@
 //    with Owen-scrambled Sobol' points at Cycles' counts (2^23 per E entry,
 //    2^26 per E_avg entry with mu drawn per sample, 2^20 per
 //    generalised-Schlick entry) on 8 entries of each table (2 of the E_avg
-//    tables), evenly spread;
+//    tables), drawn at random among those not given in closed form;
 //    the glass estimator weighs reflection by F and refraction by 1 - F in
 //    every sample instead of choosing one (less variance than Cycles' own).
 //    The time of a whole table is the measured time per entry times its
@@ -160,13 +160,23 @@ int main() {
     const std::size_t nodes = t.nodes();
     double worst = 0, sq = 0, seconds = 0;
     const int picks = average ? 2 : 8;  // an E_avg entry costs 8 E entries
+    std::uint64_t trial = 0;
     for (int pick = 0; pick < picks; ++pick) {
-      const std::size_t node = (2 * pick + 1) * nodes / (2 * picks);
-      std::size_t rest = node;
+      // Entries drawn at random, away from the closed-form ones (roughness
+      // node 0, the matched index at z node 0), which both methods get exactly.
+      std::size_t node = 0;
       std::vector<double> at;
-      for (const validate::PresetAxis& ax : t.axes) {
-        at.push_back(ax.evaluated[rest % ax.coordinate.size()]);
-        rest /= ax.coordinate.size();
+      for (bool singular = true; singular;) {
+        node = validate::Mix64(++trial) % nodes;
+        std::size_t rest = node;
+        at.clear();
+        singular = false;
+        for (const validate::PresetAxis& ax : t.axes) {
+          const std::size_t i = rest % ax.coordinate.size();
+          singular = singular || (i == 0 && ax.name != "mu");
+          at.push_back(ax.evaluated[i]);
+          rest /= ax.coordinate.size();
+        }
       }
       // Axes: roughness, then mu (E tables), then z; E_avg tables have no mu.
       const double r = at[0];
@@ -176,7 +186,8 @@ int main() {
       for (std::uint32_t k = 0; k < samples; ++k) {
         const auto u = sobol.Point(k, node + 1);
         if (average) {
-          const double mu = std::max(1e-9, RadicalInverse(k ^ 0x9e3779b9u));
+          // mu independent of the Sobol' point (a hash of the index, not its bits reversed).
+          const double mu = std::max(1e-9, double(validate::Mix64(k + 0x51ed27u * (node + 1)) >> 11) * 0x1p-53);
           sum += 2 * mu * Score(t.name, r, mu, z, u[0], u[1]);
         } else {
           sum += Score(t.name, r, at[1], z, u[0], u[1]);

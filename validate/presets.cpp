@@ -10,7 +10,9 @@
 #include <ImfStdIO.h>
 #include <ImfStringAttribute.h>
 #include <half.h>
+#include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
+#include <tbb/partitioner.h>
 
 #include <algorithm>
 #include <atomic>
@@ -404,8 +406,7 @@ Preset BuildPreset(const std::string& name, const PresetOptions& options) {
   std::stable_partition(jobs.begin(), jobs.end(), [](const Job& j) { return j.average; });
   std::atomic<std::size_t> done{0};
   std::atomic<std::int64_t> evals{0};
-  tbb::parallel_for(std::size_t(0), jobs.size(), [&](std::size_t k) {
-    Job& j = jobs[k];
+  const auto run = [&](Job& j) {
     const Estimate e = j.compute();
     const std::size_t nc = j.table->channels.size();
     for (std::size_t c = 0; c < nc; ++c) {
@@ -416,7 +417,15 @@ Preset BuildPreset(const std::string& name, const PresetOptions& options) {
     evals += e.evals;
     const std::size_t d = ++done;
     if (options.progress) options.progress(d, jobs.size());
-  });
+  };
+  // One job at a time per thread: their costs differ by a factor of 1000
+  // (an average against a closed form), so chunks would leave threads idle.
+  tbb::parallel_for(
+      tbb::blocked_range<std::size_t>(0, jobs.size(), 1),
+      [&](const tbb::blocked_range<std::size_t>& range) {
+        for (std::size_t k = range.begin(); k < range.end(); ++k) run(jobs[k]);
+      },
+      tbb::simple_partitioner());
   if (!options.tables.empty()) {
     // Pruned only now: the jobs point into the full list.
     std::vector<PresetTable> kept;
