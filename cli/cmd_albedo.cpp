@@ -49,7 +49,7 @@ void RegisterAlbedo(CLI::App& app) {
       "multiple-scattering compensation terms. The entry at mu = 0 holds the limit mu -> 0.");
   static ModelArgs margs;
   static std::string axes, nodes = "uniform", csv, exr, header, prefix, part = "total", preset;
-  static int filament_size = 128;
+  static int filament_size = validate::PresetOptions{}.filament_size;
   static std::vector<std::string> preset_tables;
   static double tolerance = validate::AlbedoQuadratureOptions{}.abs_tolerance, accept_error = 0;
   static std::string slice;
@@ -102,7 +102,7 @@ void RegisterAlbedo(CLI::App& app) {
       if (!axes.empty() || !margs.model.empty())
         throw UsageError("--preset excludes --model and --axes: a preset has its own models and axes");
       validate::PresetOptions po;
-      po.abs_tolerance = cmd->count("--tolerance") ? tolerance : 1e-7;
+      if (cmd->count("--tolerance")) po.abs_tolerance = tolerance;  // else the presets' 1e-7
       po.filament_size = filament_size;
       po.tables = preset_tables;
       const tbb::global_control limit(tbb::global_control::max_allowed_parallelism,

@@ -343,8 +343,8 @@ void AlbedoTask::Parse(SceneReader& r, const Scene& /*scene*/) {
         r.FailKey("tables[" + std::to_string(i) + "]",
                   "preset '" + t.preset + "' has no table '" + t.tables[i] + "' (its tables: " + list + ")");
       }
-    t.filament_size = int(r.Integer("filament_size", 128, 2, 4096));
-    t.tolerance = r.Number("tolerance", 1e-7, 1e-12, 1e-2);
+    t.filament_size = int(r.Integer("filament_size", validate::PresetOptions{}.filament_size, 2, 4096));
+    t.tolerance = r.Number("tolerance", validate::PresetOptions{}.abs_tolerance, 1e-12, 1e-2);
     t.accept_error = r.Number("accept_error", t.accept_error, 1e-12, 1e3);
     return;
   }

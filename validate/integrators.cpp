@@ -1026,7 +1026,9 @@ class LightSideView final : public Bxdf<double> {
 // (k (w.m) + t.m)^2 / |t.m| dw_m (the inverse of Walter et al. 2007, eq. 16). The integrand
 // is zero where w.m <= 0, where m reflects w totally and where t would leave
 // on w's side. Both angles by adaptive Gauss-Kronrod, breakpoints at
-// multiples of the lobe width; the budget stops refinement of both levels.
+// multiples of the lobe width, where t reaches the horizon and at the
+// options' facet kinks (ScatteredPower adds total internal reflection); the
+// budget stops refinement of both levels.
 AdaptiveResult AdaptiveRefracted(const Bxdf<double>& bxdf, const double* p, const Vector3d& w, double k,
                                  const LobeShape& shape, const IntegrateOptions& o) {
   const double width = std::min(1.0, shape.width);
@@ -1049,10 +1051,7 @@ AdaptiveResult AdaptiveRefracted(const Bxdf<double>& bxdf, const double* p, cons
     return double(evals) + 30 * per_inner > double(o.budget);
   };
   const double inner_abs = o.abs_tolerance / (2 * factor * phi_end), inner_rel = 0.5 * o.rel_tolerance;
-  // The onset of total internal reflection, w.m = sqrt(1 - 1 / k^2), where
-  // 1 - F falls to 0 like a square root.
-  std::vector<double> kinks = o.facet_kinks;
-  if (k > 1) kinks.push_back(std::sqrt(1 - 1 / (k * k)));
+  const std::vector<double>& kinks = o.facet_kinks;
   NodeBatch batch;
   const auto inner = [&](double phi) -> QuadValue {
     ++inner_calls;
@@ -1145,10 +1144,13 @@ ScatteredEstimate ScatteredPower(const Bxdf<double>& bxdf, const double* params,
   // Snell: n_w sin(theta_w) = n_v sin(theta_v), RelativeIndex(w, v) = n_w / n_v.
   const bool transmits = bxdf.Kind() & LobeKind::kTransmission;
   const double k = transmits ? bxdf.RelativeIndex(params, w, other(Vector3d::UnitZ())) : 1.0;
-  IntegrateOptions ro = options;
+  // The onset of total internal reflection, w.m = sqrt(1 - 1 / k^2): past it
+  // facets reflect all, and F reaches 1 (1 - F falls to 0) like a square
+  // root. A kink of both the reflected and the refracted integrand.
+  IntegrateOptions ko = options;
+  if (k > 1) ko.facet_kinks.push_back(std::sqrt(1 - 1 / (k * k)));
+  IntegrateOptions ro = ko;
   ro.shape.reset();  // the view's lobe facts, not the model's
-  // Facets past the critical angle reflect all: Fresnel's kink.
-  if (k > 1) ro.facet_kinks.push_back(std::sqrt(1 - 1 / (k * k)));
   out.reflected = DirectionalAlbedo(LightSideView(bxdf, below), params, w_up, Method::kAdaptive, ro);
   if (!transmits) return out;
   const LobeWidth lobe = bxdf.Width(params);
@@ -1157,7 +1159,7 @@ ScatteredEstimate ScatteredPower(const Bxdf<double>& bxdf, const double* params,
   if (lobe.Any() && std::abs(k - 1) > 1e-6) {
     const auto t0 = std::chrono::steady_clock::now();
     const AdaptiveResult r =
-        AdaptiveRefracted(bxdf, params, w, k, options.shape ? *options.shape : EstimateLobeShape(bxdf, params), options);
+        AdaptiveRefracted(bxdf, params, w, k, options.shape ? *options.shape : EstimateLobeShape(bxdf, params), ko);
     out.transmitted.value = r.value;
     out.transmitted.error = r.error;
     out.transmitted.evals = r.evals;

@@ -35,6 +35,23 @@ namespace {
 
 // --- integrands that are not registered models -----------------------------
 
+// An integrand for the albedo rules that is not a model: no sampling, grey,
+// a glossy lobe (subclasses give its Width), described by its name alone.
+class Integrand : public Bxdf<double> {
+ public:
+  explicit Integrand(const std::string& name) { info_.name = name; }
+  const ModelInfo& Info() const override { return info_; }
+  BsdfSample<double> Sample(const double*, const Vec3<double>&, double, double) const override { return {}; }
+  double Pdf(const double*, const Vec3<double>&, const Vec3<double>&) const override { return 0; }
+  double SampleWeight(const double*) const override { return 1; }
+  bool CanSample() const override { return false; }
+  unsigned Kind() const override { return LobeKind::kGlossy; }
+  bool ChannelsIndependent() const override { return true; }
+
+ private:
+  ModelInfo info_;
+};
+
 // The mean of s(wi.h) over the visible normals h of wi, counting only the
 // reflections wo = reflect(wi, h) that leave above the surface:
 //   s_bar(wi) = int D_wi(h) [wo.z > 0] s(wi.h) dh,  D_wi(h) = G1(wi) max(0, wi.h) D(h) / wi.z
@@ -42,13 +59,10 @@ namespace {
 //   s_bar(wi) = int f(wo, wi) wo.z dwo,  f(wo, wi) = D(h) G1(wi) s(wi.h) / (4 wo.z wi.z),
 // so the half-vector rule integrates it as the directional albedo of wi.
 // GGX, isotropic, alpha held here (the parameter vector is not read).
-class VisibleNormalMean final : public Bxdf<double> {
+class VisibleNormalMean final : public Integrand {
  public:
-  VisibleNormalMean(double alpha, std::function<double(double)> s) : alpha_(alpha), s_(std::move(s)) {
-    info_.name = "visible_normal_mean";
-    info_.params.push_back({"alpha", 0, 1, alpha, false, "GGX roughness", ParamInfo::Scale::kLog});
-  }
-  const ModelInfo& Info() const override { return info_; }
+  VisibleNormalMean(double alpha, std::function<double(double)> s)
+      : Integrand("visible_normal_mean"), alpha_(alpha), s_(std::move(s)) {}
   Rgb<double> Eval(const double*, const Vec3<double>& wo, const Vec3<double>& wi) const override {
     if (wo.z() <= 0 || wi.z() <= 0) return Rgb<double>::Zero();
     const Vec3<double> hv = wo + wi;
@@ -60,54 +74,27 @@ class VisibleNormalMean final : public Bxdf<double> {
     const double g1 = 1 / (1 + LambdaGgx(wi, alpha_, alpha_));
     return Rgb<double>::Constant(DGgx(h, alpha_, alpha_) * g1 * s_(c) / (4 * wo.z() * wi.z()));
   }
-  BsdfSample<double> Sample(const double*, const Vec3<double>&, double, double) const override { return {}; }
-  double Pdf(const double*, const Vec3<double>&, const Vec3<double>&) const override { return 0; }
-  double SampleWeight(const double*) const override { return 1; }
-  bool CanSample() const override { return false; }
-  unsigned Kind() const override { return LobeKind::kGlossy; }
   LobeWidth Width(const double*) const override { return {alpha_, alpha_}; }
-  bool ChannelsIndependent() const override { return true; }
 
  private:
   double alpha_;
   std::function<double(double)> s_;
-  ModelInfo info_;
 };
 
 // Filament's cloth lobe: the Charlie sheen distribution (Estevez & Kulla
 // 2017) D(h) = (2 + 1 / alpha) sin(theta_h)^(1 / alpha) / (2 pi) with
-// Neubelt & Pettineo's visibility V = 1 / (4 (NoL + NoV - NoL NoV));
-// f = D V. Its peak lies where h is near the horizon, not at h = n, so it
-// declares no glossy lobe and is integrated in (phi, cos theta).
-class CharlieNeubelt final : public Bxdf<double> {
- public:
-  explicit CharlieNeubelt(double alpha) : alpha_(alpha) {
-    info_.name = "charlie_neubelt";
-    info_.params.push_back({"alpha", 0, 1, alpha, false, "sheen roughness", ParamInfo::Scale::kLog});
-  }
-  const ModelInfo& Info() const override { return info_; }
-  Rgb<double> Eval(const double*, const Vec3<double>& wi, const Vec3<double>& wo) const override {
-    if (wi.z() <= 0 || wo.z() <= 0) return Rgb<double>::Zero();
-    const Vec3<double> hv = wi + wo;
-    const double len2 = hv.squaredNorm();
-    if (!(len2 > 0)) return Rgb<double>::Zero();  // opposite directions: no half vector
-    // sin^2(theta_h) from the tangential components, exact near the pole.
-    const double sin2 = (hv.x() * hv.x() + hv.y() * hv.y()) / len2;
-    const double d = (2 + 1 / alpha_) * std::pow(sin2, 0.5 / alpha_) / (2 * kPi);
-    const double v = 1 / (4 * (wi.z() + wo.z() - wi.z() * wo.z()));
-    return Rgb<double>::Constant(d * v);
-  }
-  BsdfSample<double> Sample(const double*, const Vec3<double>&, double, double) const override { return {}; }
-  double Pdf(const double*, const Vec3<double>&, const Vec3<double>&) const override { return 0; }
-  double SampleWeight(const double*) const override { return 1; }
-  bool CanSample() const override { return false; }
-  unsigned Kind() const override { return LobeKind::kDiffuse; }
-  bool ChannelsIndependent() const override { return true; }
-
- private:
-  double alpha_;
-  ModelInfo info_;
-};
+// Neubelt & Pettineo's visibility V = 1 / (4 (NoL + NoV - NoL NoV)); f = D V.
+double CharlieNeubelt(double alpha, const Vec3<double>& wi, const Vec3<double>& wo) {
+  if (wi.z() <= 0 || wo.z() <= 0) return 0;
+  const Vec3<double> hv = wi + wo;
+  const double len2 = hv.squaredNorm();
+  if (!(len2 > 0)) return 0;  // opposite directions: no half vector
+  // sin^2(theta_h) from the tangential components, exact near the pole.
+  const double sin2 = (hv.x() * hv.x() + hv.y() * hv.y()) / len2;
+  const double d = (2 + 1 / alpha) * std::pow(sin2, 0.5 / alpha) / (2 * kPi);
+  const double v = 1 / (4 * (wi.z() + wo.z() - wi.z() * wo.z()));
+  return d * v;
+}
 
 // A registered model with its parameters set by name (colour parameters on
 // every channel, or per channel).
@@ -130,14 +117,15 @@ Eigen::Array3d All(double v) { return Eigen::Array3d::Constant(v); }
 // (1 - v.h)^5) and f0 = 1 (F = 1) in R and G, the cloth lobe in B, so that
 // one quadrature serves the texel (the error estimate is the largest of
 // the three).
-class FilamentDfg final : public Bxdf<double> {
+class FilamentDfg final : public Integrand {
  public:
   explicit FilamentDfg(double alpha)
-      : ggx_(Configure("ggx", {{"alpha", All(alpha)}, {"f0", Eigen::Array3d(0, 1, 0)}})), cloth_(alpha) {}
-  const ModelInfo& Info() const override { return ggx_.bxdf->Info(); }
+      : Integrand("filament_dfg"),
+        alpha_(alpha),
+        ggx_(Configure("ggx", {{"alpha", All(alpha)}, {"f0", Eigen::Array3d(0, 1, 0)}})) {}
   Rgb<double> Eval(const double*, const Vec3<double>& wi, const Vec3<double>& wo) const override {
     Rgb<double> f = ggx_.bxdf->Eval(ggx_.params.data(), wi, wo);
-    f[2] = cloth_.Eval(nullptr, wi, wo)[0];
+    f[2] = CharlieNeubelt(alpha_, wi, wo);
     return f;
   }
   void EvalBatch(const double*, const double* wi, std::size_t wi_stride, const double* wo, std::size_t wo_stride,
@@ -146,26 +134,20 @@ class FilamentDfg final : public Bxdf<double> {
     for (std::size_t k = 0; k < n; ++k) {
       const double* a = wi + k * wi_stride;
       const double* b = wo + k * wo_stride;
-      out[3 * k + 2] = cloth_.Eval(nullptr, Vec3<double>(a[0], a[1], a[2]), Vec3<double>(b[0], b[1], b[2]))[0];
+      out[3 * k + 2] = CharlieNeubelt(alpha_, Vec3<double>(a[0], a[1], a[2]), Vec3<double>(b[0], b[1], b[2]));
     }
   }
-  BsdfSample<double> Sample(const double*, const Vec3<double>&, double, double) const override { return {}; }
-  double Pdf(const double*, const Vec3<double>&, const Vec3<double>&) const override { return 0; }
-  double SampleWeight(const double*) const override { return 1; }
-  bool CanSample() const override { return false; }
-  unsigned Kind() const override { return LobeKind::kGlossy; }
   LobeWidth Width(const double*) const override { return ggx_.bxdf->Width(ggx_.params.data()); }
-  bool ChannelsIndependent() const override { return true; }
 
  private:
+  double alpha_;
   Configured ggx_;
-  CharlieNeubelt cloth_;
 };
 
 // One entry of one table: fills channel c of entry `node` (every channel
 // for c = -1).
 struct Job {
-  PresetTable* table;
+  std::size_t table;  // index into the preset's tables
   std::size_t node;
   int channel;
   std::function<Estimate()> compute;
@@ -223,15 +205,14 @@ void AddCycles(std::vector<PresetTable>& tables, std::vector<Job>& jobs, const P
   const PresetAxis rough32 = NodeAxis("roughness", 32, 1e-4, 1), mu32 = NodeAxis("mu", 32, 1e-4, 1);
   const PresetAxis rough16 = NodeAxis("roughness", 16, 1e-4, 1), mu16 = NodeAxis("mu", 16, 1e-4, 1);
   const PresetAxis zior = NodeAxis("z", 16, 1e-4, 0.99);
-  tables.reserve(8);
 
   // GGX reflection, F = 1.
   tables.push_back(NewTable("table_ggx_E", "E(roughness, mu): GGX reflection albedo with F = 1 (single scattering)",
                             {rough32, mu32}, {"E"}));
-  PresetTable* ggx_e = &tables.back();
+  const std::size_t ggx_e = tables.size() - 1;
   tables.push_back(NewTable("table_ggx_Eavg", "E_avg(roughness) = 2 int_0^1 E(mu) mu dmu of table_ggx_E", {rough32},
                             {"E"}));
-  PresetTable* ggx_avg = &tables.back();
+  const std::size_t ggx_avg = tables.size() - 1;
   for (std::size_t x = 0; x < 32; ++x) {
     const double r = rough32.evaluated[x];
     const bool smooth = SmoothRoughness(r);
@@ -256,10 +237,10 @@ void AddCycles(std::vector<PresetTable>& tables, std::vector<Job>& jobs, const P
     const std::string side = inv ? "eta = 1 / ior(z), light from inside" : "eta = ior(z), light from outside";
     tables.push_back(NewTable(stem + "E", "E_R + E_T(roughness, mu, z): power scattered by rough glass, " + side,
                               {rough16, mu16, zior}, {"E"}));
-    PresetTable* e = &tables.back();
+    const std::size_t e = tables.size() - 1;
     tables.push_back(NewTable(stem + "Eavg", "E_avg(roughness, z) = 2 int_0^1 (E_R + E_T) mu dmu, " + side,
                               {rough16, zior}, {"E"}));
-    PresetTable* avg = &tables.back();
+    const std::size_t avg = tables.size() - 1;
     for (std::size_t z = 0; z < 16; ++z) {
       const double ior = IorOfZ(zior.evaluated[z]);
       const double eta = inv ? 1 / ior : ior;
@@ -294,7 +275,7 @@ void AddCycles(std::vector<PresetTable>& tables, std::vector<Job>& jobs, const P
                  : "s_bar(roughness, mu, z): mean over the visible normals of (1 - wi.h)^e, e = 5 (1 - z) / z, "
                    "reflections above the surface",
         {rough16, mu16, zaxis}, {"s"}));
-    PresetTable* t = &tables.back();
+    const std::size_t t = tables.size() - 1;
     for (std::size_t z = 0; z < 16; ++z) {
       const double zz = zior.evaluated[z];
       const double ior = ior_mode ? IorOfZ(zz) : 1.0;
@@ -341,7 +322,7 @@ void AddFilament(std::vector<PresetTable>& tables, std::vector<Job>& jobs, const
                             "R = int f(F = (1 - v.h)^5) NoL dl, G = int f(F = 1) NoL dl (GGX, height-correlated "
                             "Smith), B = int D_Charlie V_Neubelt NoL dl",
                             {nov, rough}, {"R", "G", "B"}));
-  PresetTable* t = &tables.back();
+  const std::size_t t = tables.size() - 1;
   for (int j = 0; j < n; ++j) {
     const double r = rough.evaluated[j], alpha = r * r;
     for (int i = 0; i < n; ++i) {
@@ -398,8 +379,8 @@ Preset BuildPreset(const std::string& name, const PresetOptions& options) {
     for (const std::string& want : options.tables)
       if (std::none_of(p.tables.begin(), p.tables.end(), [&](const PresetTable& t) { return t.name == want; }))
         throw ModelError("preset '" + name + "' has no table '" + want + "' (its tables: " + names + ")");
-    const auto unwanted = [&](const PresetTable* t) {
-      return std::find(options.tables.begin(), options.tables.end(), t->name) == options.tables.end();
+    const auto unwanted = [&](std::size_t t) {
+      return std::find(options.tables.begin(), options.tables.end(), p.tables[t].name) == options.tables.end();
     };
     jobs.erase(std::remove_if(jobs.begin(), jobs.end(), [&](const Job& j) { return unwanted(j.table); }), jobs.end());
   }
@@ -408,11 +389,12 @@ Preset BuildPreset(const std::string& name, const PresetOptions& options) {
   std::atomic<std::int64_t> evals{0};
   const auto run = [&](Job& j) {
     const Estimate e = j.compute();
-    const std::size_t nc = j.table->channels.size();
+    PresetTable& t = p.tables[j.table];
+    const std::size_t nc = t.channels.size();
     for (std::size_t c = 0; c < nc; ++c) {
       if (j.channel >= 0 && std::size_t(j.channel) != c) continue;
-      j.table->value[j.node * nc + c] = e.value[j.channel >= 0 ? 0 : c];
-      j.table->error[j.node * nc + c] = e.error[j.channel >= 0 ? 0 : c];
+      t.value[j.node * nc + c] = e.value[j.channel >= 0 ? 0 : c];
+      t.error[j.node * nc + c] = e.error[j.channel >= 0 ? 0 : c];
     }
     evals += e.evals;
     const std::size_t d = ++done;
@@ -427,7 +409,7 @@ Preset BuildPreset(const std::string& name, const PresetOptions& options) {
       },
       tbb::simple_partitioner());
   if (!options.tables.empty()) {
-    // Pruned only now: the jobs point into the full list.
+    // Pruned only now: the jobs index the full list.
     std::vector<PresetTable> kept;
     for (PresetTable& t : p.tables)
       if (std::find(options.tables.begin(), options.tables.end(), t.name) != options.tables.end())
