@@ -234,13 +234,17 @@ TEST(Cli, PresetHeadersCompileAndHoldTheJsonValues) {
                             ".h --json");
   ASSERT_EQ(rc.code, 0) << rc.out;
   const auto jc = nlohmann::json::parse(rc.out.substr(0, rc.out.find('\n')));
-  const CliRun rf = Brdfkit("albedo --preset filament --filament-size 4 --header " + f + ".h --json");
+  const CliRun rf = Brdfkit("albedo --preset filament --size 4 --header " + f + ".h --json");
   ASSERT_EQ(rf.code, 0) << rf.out;
-  ASSERT_EQ(Brdfkit("albedo --preset filament --filament-size 4 --header " + f + ".inc").code, 0);
+  ASSERT_EQ(Brdfkit("albedo --preset filament --size 4 --header " + f + ".inc").code, 0);
   const auto jf = nlohmann::json::parse(rf.out.substr(0, rf.out.find('\n')));
+  const std::string kc_path = (dir / "kc").string();
+  const CliRun rk = Brdfkit("albedo --preset kulla_conty --size 3 --tables kc_Favg,kc_inv_Favg --header " + kc_path + ".h --json");
+  ASSERT_EQ(rk.code, 0) << rk.out;
+  const auto jk = nlohmann::json::parse(rk.out.substr(0, rk.out.find('\n')));
   ASSERT_EQ(jc["tables"].size(), 2u);
   const std::string prog =
-      "#include <stdio.h>\n#include \"" + c + ".h\"\n#include \"" + f + ".h\"\n"
+      "#include <stdio.h>\n#include \"" + c + ".h\"\n#include \"" + f + ".h\"\n#include \"" + kc_path + ".h\"\n"
       "static const uint16_t inc[] = {\n#include \"" + f + ".inc\"\n};\n"
       "int main(void) {\n  unsigned i, bad = 0;\n"
       "  for (i = 0; i < 32; ++i) printf(\"%.9g\\n\", (double)table_ggx_Eavg[i]);\n"
@@ -248,6 +252,9 @@ TEST(Cli, PresetHeadersCompileAndHoldTheJsonValues) {
       "  if (sizeof(inc) != DFG_LUT_SIZE * DFG_LUT_SIZE * 3 * sizeof(uint16_t)) ++bad;\n"
       "  for (i = 0; i < DFG_LUT_SIZE * DFG_LUT_SIZE * 3; ++i) {\n"
       "    if (inc[i] != DFG_LUT[i]) ++bad;\n    printf(\"%u\\n\", (unsigned)DFG_LUT[i]);\n  }\n"
+      "  for (i = 0; i < 3; ++i) printf(\"%.9g\\n%.9g\\n\", (double)kc_lookup(kc_Favg, 3, 1, i / 2.0f, 0, 0),\n"
+      "                                (double)kc_lookup(kc_inv_Favg, 3, 1, i / 2.0f, 0, 0));\n"
+      "  printf(\"%.9g\\n\", (double)kc_lookup(kc_Favg, 3, 1, 0.75f, 0, 0));\n"
       "  return (int)bad;\n}\n";
   WriteText(dir / "main.c", prog);
   WriteText(dir / "main.cpp", prog);
@@ -258,6 +265,11 @@ TEST(Cli, PresetHeadersCompileAndHoldTheJsonValues) {
   for (const auto& v : jf["tables"][0]["value"]) want.push_back(v.get<double>());
   ASSERT_EQ(n_float, 32u + 4096u);
   ASSERT_EQ(want.size(), n_float + 48u);
+  // The lookups at the nodes of kc_Favg and kc_inv_Favg, then half way between nodes 1 and 2.
+  std::vector<double> lookups;
+  for (std::size_t i = 0; i < 3; ++i)
+    for (std::size_t t = 0; t < 2; ++t) lookups.push_back(jk["tables"][t]["value"][i].get<double>());
+  lookups.push_back(0.5 * (lookups[2] + lookups[4]));
   for (const std::string compiler : {"gcc -x c -std=c99", "g++ -x c++ -std=c++11", "clang -x c -std=c11",
                                      "clang++ -x c++ -std=c++20"}) {
     const bool cpp = compiler.find("++") != std::string::npos;
@@ -280,14 +292,24 @@ TEST(Cli, PresetHeadersCompileAndHoldTheJsonValues) {
         EXPECT_NEAR(v, want[k], std::ldexp(std::abs(want[k]), -11) + std::ldexp(1.0, -25)) << compiler << " half " << k;
       }
     }
+    for (std::size_t k = 0; k < lookups.size(); ++k) {
+      ASSERT_TRUE(std::getline(got, line)) << "fewer lookups than asked for";
+      EXPECT_NEAR(std::stod(line), lookups[k], 1e-7) << compiler << " lookup " << k;
+    }
   }
   // A preset takes no model or axes; the sizes are checked.
   const CliRun both = Brdfkit("albedo --preset cycles --model ggx");
   EXPECT_EQ(both.code, 2) << both.out;
   EXPECT_NE(both.out.find("--preset excludes --model"), std::string::npos) << both.out;
-  const CliRun small = Brdfkit("albedo --preset filament --filament-size 1");
+  const CliRun small = Brdfkit("albedo --preset filament --size 1");
   EXPECT_NE(small.code, 0) << small.out;
-  EXPECT_NE(small.out.find("--filament-size"), std::string::npos) << small.out;
+  EXPECT_NE(small.out.find("--size"), std::string::npos) << small.out;
+  const CliRun fixed = Brdfkit("albedo --preset cycles --size 8");
+  EXPECT_NE(fixed.code, 0) << fixed.out;
+  EXPECT_NE(fixed.out.find("preset 'cycles' has Cycles' fixed sizes"), std::string::npos) << fixed.out;
+  const CliRun kc = Brdfkit("albedo --preset kulla_conty --size 2");
+  EXPECT_NE(kc.code, 0) << kc.out;
+  EXPECT_NE(kc.out.find("preset 'kulla_conty': size 2 is outside [3, 256]"), std::string::npos) << kc.out;
   const CliRun table = Brdfkit("albedo --preset cycles --tables table_ggx_F");
   EXPECT_NE(table.code, 0);
   EXPECT_NE(table.out.find("table_ggx_F"), std::string::npos) << table.out;

@@ -49,7 +49,7 @@ void RegisterAlbedo(CLI::App& app) {
       "multiple-scattering compensation terms. The entry at mu = 0 holds the limit mu -> 0.");
   static ModelArgs margs;
   static std::string axes, nodes = "uniform", csv, exr, header, prefix, part = "total", preset;
-  static int filament_size = validate::PresetOptions{}.filament_size;
+  static int preset_size = 0;
   static std::vector<std::string> preset_tables;
   static double tolerance = validate::AlbedoQuadratureOptions{}.abs_tolerance, accept_error = 0;
   static std::string slice;
@@ -62,10 +62,13 @@ void RegisterAlbedo(CLI::App& app) {
   cmd->add_option("--preset", preset,
                   "instead of --model and --axes: every table a renderer ships, on its nodes and in its layout: "
                   "cycles (Blender Cycles' shader.tables: GGX, glass and generalised-Schlick tables), filament "
-                  "(Filament's DFG texture); default tolerance 1e-7. --header writes the renderer's arrays (a path "
+                  "(Filament's DFG texture), kulla_conty (Kulla & Conty's rough-glass compensation: E and E_avg "
+                  "from both sides, F_avg, the transmitted share x); default tolerance 1e-7. --header writes the renderer's arrays (a path "
                   "ending in .inc: the bare array, as Filament's build includes it)")
       ->check(CLI::IsMember(validate::PresetNames()));
-  cmd->add_option("--filament-size", filament_size, "texels per side of --preset filament's table (Filament: 128, 64 on mobile)")
+  cmd->add_option("--size", preset_size,
+                  "nodes per axis of --preset filament (texels per side; Filament: 128, 64 on mobile) or "
+                  "kulla_conty (3 to 256, default 16); cycles' sizes are fixed")
       ->check(CLI::Range(2, 4096));
   cmd->add_option("--tables", preset_tables, "only these tables of --preset (array names, comma-separated)")
       ->delimiter(',');
@@ -103,7 +106,7 @@ void RegisterAlbedo(CLI::App& app) {
         throw UsageError("--preset excludes --model and --axes: a preset has its own models and axes");
       validate::PresetOptions po;
       if (cmd->count("--tolerance")) po.abs_tolerance = tolerance;  // else the presets' 1e-7
-      po.filament_size = filament_size;
+      po.size = preset_size;
       po.tables = preset_tables;
       const tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
                                       static_cast<std::size_t>(ThreadCount(threads)));

@@ -156,7 +156,7 @@ TaskOutcome AlbedoTask::RunPreset(const TaskSpec& spec, const RunContext& ctx) c
   TaskDir dir(ctx, spec.name);
   validate::PresetOptions po;
   po.abs_tolerance = tolerance;
-  po.filament_size = filament_size;
+  po.size = size;
   po.tables = tables;
   ThreadedProgress progress("albedo " + spec.name, ctx.quiet);
   po.progress = progress.Callback();
@@ -175,7 +175,8 @@ TaskOutcome AlbedoTask::RunPreset(const TaskSpec& spec, const RunContext& ctx) c
       o.files.push_back(dir.Rel("tables.exr"));
     } else if (f == "header") {
       const std::vector<std::string> names =
-          filament ? std::vector<std::string>{"dfg.h", "dfg.inc"} : std::vector<std::string>{"shader_tables.h"};
+          filament ? std::vector<std::string>{"dfg.h", "dfg.inc"}
+                   : std::vector<std::string>{preset == "cycles" ? "shader_tables.h" : preset + ".h"};
       for (const std::string& name : names) {
         validate::WritePresetHeader(p, dir.Abs(name));
         o.files.push_back(dir.Rel(name));

@@ -241,24 +241,28 @@ TEST(Run, APresetTaskWritesTheRenderersFilesAndAFigurePerTable) {
   const fs::path d = FreshDir("albedo-preset");
   const json scene = {
       {"tasks",
-       {{{"name", "dfg"}, {"type", "albedo"}, {"preset", "filament"}, {"filament_size", 8}},
+       {{{"name", "dfg"}, {"type", "albedo"}, {"preset", "filament"}, {"size", 8}},
         {{"name", "cycles"}, {"type", "albedo"}, {"preset", "cycles"}, {"tables", {"table_ggx_Eavg", "table_ggx_E"}},
-         {"formats", {"header", "csv"}}}}}};
+         {"formats", {"header", "csv"}}},
+        {{"name", "kc"}, {"type", "albedo"}, {"preset", "kulla_conty"}, {"size", 3}, {"tables", {"kc_Favg", "kc_x"}},
+         {"formats", {"header"}}}}}};
   WriteText(d / "scene.json", scene.dump(2));
   const CliRun r = Brdfkit("run " + (d / "scene.json").string() + " --out " + (d / "out").string() + " --quiet");
   ASSERT_EQ(r.code, 0) << r.out;
   for (const char* f : {"dfg/dfg.h", "dfg/dfg.inc", "dfg/tables.csv", "dfg/tables.exr", "dfg/DFG_LUT_R.svg",
                         "dfg/DFG_LUT_G.svg", "dfg/DFG_LUT_B.svg", "cycles/shader_tables.h", "cycles/tables.csv",
-                        "cycles/table_ggx_E.svg", "cycles/table_ggx_Eavg.svg"})
+                        "cycles/table_ggx_E.svg", "cycles/table_ggx_Eavg.svg", "kc/kulla_conty.h", "kc/kc_x.svg",
+                        "kc/kc_Favg.svg"})
     EXPECT_TRUE(fs::exists(d / "out" / f)) << f;
   EXPECT_FALSE(fs::exists(d / "out" / "cycles" / "tables.exr")) << "not asked for";
   const json results = json::parse(ReadText(d / "out" / "results.json"));
-  ASSERT_EQ(results.at("tasks").size(), 2u);
+  ASSERT_EQ(results.at("tasks").size(), 3u);
   for (const json& t : results.at("tasks")) {
     const json& res = t.at("result");
     EXPECT_LE(res.at("max_error").get<double>(), 1e-7) << t.dump();
-    EXPECT_EQ(res.at("preset"), t.at("name") == "dfg" ? "filament" : "cycles");
+    EXPECT_EQ(res.at("preset"), t.at("name") == "dfg" ? "filament" : t.at("name") == "kc" ? "kulla_conty" : "cycles");
   }
+  EXPECT_NE(ReadText(d / "out" / "kc" / "kulla_conty.h").find("static const float kc_x[9]"), std::string::npos);
   // The header holds the tables in Cycles' order, whatever the scene's order.
   const std::string h = ReadText(d / "out" / "cycles" / "shader_tables.h");
   EXPECT_LT(h.find("table_ggx_E[1024]"), h.find("table_ggx_Eavg[32]"));
@@ -294,6 +298,8 @@ TEST(Run, MalformedScenesAreRejectedBeforeAnyWork) {
   preset_and_model["tasks"][0]["preset"] = "cycles";
   json bad_table = SmallScene();
   bad_table["tasks"][0] = {{"name", "t"}, {"type", "albedo"}, {"preset", "cycles"}, {"tables", {"table_ggx_F"}}};
+  json fixed_size = SmallScene();
+  fixed_size["tasks"][0] = {{"name", "t"}, {"type", "albedo"}, {"preset", "cycles"}, {"size", 8}};
   json bad_preset = SmallScene();
   bad_preset["tasks"][0] = {{"name", "t"}, {"type", "albedo"}, {"preset", "unreal"}};
   const std::vector<Case> cases = {
@@ -312,6 +318,7 @@ TEST(Run, MalformedScenesAreRejectedBeforeAnyWork) {
       {"preset_and_model", preset_and_model.dump(2), "tasks[0].model: a preset has its own models and axes"},
       {"bad_table", bad_table.dump(2), "tasks[0].tables[0]: preset 'cycles' has no table 'table_ggx_F'"},
       {"bad_preset", bad_preset.dump(2), "tasks[0].preset: unknown table preset 'unreal'"},
+      {"fixed_size", fixed_size.dump(2), "tasks[0].size: preset 'cycles' has Cycles' fixed sizes"},
   };
   for (const Case& c : cases) {
     const fs::path scene = d / (c.name + ".json");

@@ -331,7 +331,7 @@ void AlbedoTask::Parse(SceneReader& r, const Scene& /*scene*/) {
     t.preset = r.String("preset");
     const std::vector<std::string> presets = validate::PresetNames();
     if (std::find(presets.begin(), presets.end(), t.preset) == presets.end())
-      r.FailKey("preset", "unknown table preset '" + t.preset + "' (expected cycles or filament)");
+      r.FailKey("preset", "unknown table preset '" + t.preset + "' (expected cycles, filament or kulla_conty)");
     for (const char* key : {"model", "params", "axes", "nodes", "part"})
       if (r.Has(key)) r.FailKey(key, "a preset has its own models and axes: give \"preset\" or \"model\", not both");
     const std::vector<std::string> names = validate::PresetTableNames(t.preset);
@@ -343,12 +343,17 @@ void AlbedoTask::Parse(SceneReader& r, const Scene& /*scene*/) {
         r.FailKey("tables[" + std::to_string(i) + "]",
                   "preset '" + t.preset + "' has no table '" + t.tables[i] + "' (its tables: " + list + ")");
       }
-    t.filament_size = int(r.Integer("filament_size", validate::PresetOptions{}.filament_size, 2, 4096));
+    t.size = int(r.Integer("size", 0, 2, 4096));
+    try {
+      validate::PresetSize(t.preset, t.size);
+    } catch (const ModelError& e) {
+      r.FailKey("size", e.what());
+    }
     t.tolerance = r.Number("tolerance", validate::PresetOptions{}.abs_tolerance, 1e-12, 1e-2);
     t.accept_error = r.Number("accept_error", t.accept_error, 1e-12, 1e3);
     return;
   }
-  for (const char* key : {"tables", "filament_size"})
+  for (const char* key : {"tables", "size"})
     if (r.Has(key)) r.FailKey(key, "only with \"preset\"");
   const Model model = ParseModelAt(r, "model");
   if (!model.Info().settings.empty()) r.FailKey("model", "albedo tables are made of analytic models");

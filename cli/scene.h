@@ -80,7 +80,7 @@ struct AlbedoTask : TaskTypeBase {
   // A renderer's table set instead of a model and axes (validate/presets.h).
   std::string preset;
   std::vector<std::string> tables;  // only these of the preset's tables (empty: all)
-  int filament_size = 0;  // set by Parse with a preset (default: validate::PresetOptions)
+  int size = 0;  // nodes per axis of a preset (0: its default; validate::PresetSize)
 
   void Parse(SceneReader& r, const Scene& s);
   TaskOutcome Run(const TaskSpec& t, const RunContext& ctx) const;

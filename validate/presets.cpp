@@ -15,7 +15,9 @@
 #include <tbb/partitioner.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
+#include <cctype>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -154,6 +156,13 @@ struct Job {
   bool average;  // E_avg jobs cost tens of entries: scheduled first
 };
 
+// A table computed from other tables once their jobs are done.
+struct Derived {
+  std::size_t table;
+  std::vector<std::size_t> inputs;
+  std::function<void(std::vector<PresetTable>&)> fill;
+};
+
 Estimate Exact(double v) {
   Estimate e;
   e.value = Eigen::Array3d::Constant(v);
@@ -200,6 +209,62 @@ double IorOfZ(double z) { return (1 + z * z) / (1 - z * z); }
 bool SmoothRoughness(double roughness) { return std::pow(roughness, 4) <= 5e-7; }
 bool MatchedIndex(double ior) { return std::abs(ior - 1) < 1e-4; }
 
+// Rough glass (GGX, height-correlated Smith) over (roughness, mu, z), from
+// outside (eta = ior(z)) and from inside (eta = 1 / ior(z)): tables
+// <stem>E, <stem>Eavg, <stem>inv_E, <stem>inv_Eavg. With loss_relative, an
+// average whose loss L = 1 - E_avg is below 1/2 is recomputed to 2 tol L, so
+// that ratios of losses (Kulla-Conty's x) keep tol.
+void AddGlass(std::vector<PresetTable>& tables, std::vector<Job>& jobs, const std::string& stem,
+              const std::array<PresetAxis, 3>& axes, const AlbedoQuadratureOptions& q, bool loss_relative) {
+  const PresetAxis& rough = axes[0];
+  const PresetAxis& mu_axis = axes[1];
+  const PresetAxis& zior = axes[2];
+  const std::size_t nr = rough.coordinate.size(), nm = mu_axis.coordinate.size(), nz = zior.coordinate.size();
+  for (const bool inv : {false, true}) {
+    const std::string name = stem + (inv ? "inv_" : "");
+    const std::string side = inv ? "eta = 1 / ior(z), light from inside" : "eta = ior(z), light from outside";
+    tables.push_back(NewTable(name + "E", "E_R + E_T(roughness, mu, z): power scattered by rough glass, " + side,
+                              {rough, mu_axis, zior}, {"E"}));
+    const std::size_t e = tables.size() - 1;
+    tables.push_back(NewTable(name + "Eavg", "E_avg(roughness, z) = 2 int_0^1 (E_R + E_T) mu dmu, " + side,
+                              {rough, zior}, {"E"}));
+    const std::size_t avg = tables.size() - 1;
+    for (std::size_t z = 0; z < nz; ++z) {
+      const double ior = IorOfZ(zior.evaluated[z]);
+      const double eta = inv ? 1 / ior : ior;
+      for (std::size_t x = 0; x < nr; ++x) {
+        const double r = rough.evaluated[x];
+        // A smooth interface reflects F and transmits 1 - F; a matched one transmits all.
+        const bool exact = SmoothRoughness(r) || MatchedIndex(ior);
+        for (std::size_t y = 0; y < nm; ++y) {
+          const double mu = mu_axis.evaluated[y];
+          jobs.push_back({e, (z * nm + y) * nr + x, 0, [=] {
+                            if (exact) return Exact(1);
+                            const Configured c = Configure("ggx_glass_correlated", {{"alpha", All(r * r)}, {"eta", All(eta)}});
+                            return AlbedoAtMu(*c.bxdf, c.params.data(), mu, ShapeOf(r * r), q);
+                          }, false});
+        }
+        jobs.push_back({avg, z * nr + x, 0, [=] {
+                          if (exact) return Exact(1);
+                          const Configured c = Configure("ggx_glass_correlated", {{"alpha", All(r * r)}, {"eta", All(eta)}});
+                          Estimate a = AverageAlbedo(*c.bxdf, c.params.data(), ShapeOf(r * r), q);
+                          // The loss known to be present: the estimate's lower end.
+                          const double loss = 1 - a.value[0] - a.error[0];
+                          if (loss_relative && loss < 0.5) {
+                            AlbedoQuadratureOptions tight = q;
+                            // A floor where the loss is unresolved at tol: the estimate then says so.
+                            tight.abs_tolerance = std::max(1e-12, 2 * q.abs_tolerance * loss);
+                            const std::int64_t first = a.evals;
+                            a = AverageAlbedo(*c.bxdf, c.params.data(), ShapeOf(r * r), tight);
+                            a.evals += first;
+                          }
+                          return a;
+                        }, true});
+      }
+    }
+  }
+}
+
 void AddCycles(std::vector<PresetTable>& tables, std::vector<Job>& jobs, const PresetOptions& o) {
   const AlbedoQuadratureOptions q = Quadrature(o);
   const PresetAxis rough32 = NodeAxis("roughness", 32, 1e-4, 1), mu32 = NodeAxis("mu", 32, 1e-4, 1);
@@ -231,39 +296,7 @@ void AddCycles(std::vector<PresetTable>& tables, std::vector<Job>& jobs, const P
                     }, true});
   }
 
-  // Rough glass, from outside (eta = ior) and from inside (eta = 1 / ior).
-  for (const bool inv : {false, true}) {
-    const std::string stem = inv ? "table_ggx_glass_inv_" : "table_ggx_glass_";
-    const std::string side = inv ? "eta = 1 / ior(z), light from inside" : "eta = ior(z), light from outside";
-    tables.push_back(NewTable(stem + "E", "E_R + E_T(roughness, mu, z): power scattered by rough glass, " + side,
-                              {rough16, mu16, zior}, {"E"}));
-    const std::size_t e = tables.size() - 1;
-    tables.push_back(NewTable(stem + "Eavg", "E_avg(roughness, z) = 2 int_0^1 (E_R + E_T) mu dmu, " + side,
-                              {rough16, zior}, {"E"}));
-    const std::size_t avg = tables.size() - 1;
-    for (std::size_t z = 0; z < 16; ++z) {
-      const double ior = IorOfZ(zior.evaluated[z]);
-      const double eta = inv ? 1 / ior : ior;
-      for (std::size_t x = 0; x < 16; ++x) {
-        const double r = rough16.evaluated[x];
-        // A smooth interface reflects F and transmits 1 - F; a matched one transmits all.
-        const bool exact = SmoothRoughness(r) || MatchedIndex(ior);
-        for (std::size_t y = 0; y < 16; ++y) {
-          const double mu = mu16.evaluated[y];
-          jobs.push_back({e, (z * 16 + y) * 16 + x, 0, [=] {
-                            if (exact) return Exact(1);
-                            const Configured c = Configure("ggx_glass_correlated", {{"alpha", All(r * r)}, {"eta", All(eta)}});
-                            return AlbedoAtMu(*c.bxdf, c.params.data(), mu, ShapeOf(r * r), q);
-                          }, false});
-        }
-        jobs.push_back({avg, z * 16 + x, 0, [=] {
-                          if (exact) return Exact(1);
-                          const Configured c = Configure("ggx_glass_correlated", {{"alpha", All(r * r)}, {"eta", All(eta)}});
-                          return AverageAlbedo(*c.bxdf, c.params.data(), ShapeOf(r * r), q);
-                        }, true});
-      }
-    }
-  }
+  AddGlass(tables, jobs, "table_ggx_glass_", {rough16, mu16, zior}, q, false);
 
   // Generalised Schlick interpolation factors.
   for (const bool ior_mode : {true, false}) {
@@ -306,9 +339,110 @@ void AddCycles(std::vector<PresetTable>& tables, std::vector<Job>& jobs, const P
   }
 }
 
+// F_avg(eta) = 2 int_0^1 F(mu, eta) mu dmu of the exact dielectric Fresnel
+// term, eta > 1 (smooth in mu: one Gauss-Kronrod panel converges).
+Estimate FresnelAverage(double eta) {
+  double err = 0;
+  std::int64_t n = 0;
+  const Eigen::Array3d v = AdaptiveGaussKronrod(
+      [eta](double mu) { return Eigen::Array3d::Constant(2 * mu * FresnelDielectric(eta, mu)); }, 0, 1, {}, 1e-14, 100,
+      &err, &n);
+  Estimate e;
+  e.value = v;
+  e.error = Eigen::Array3d::Constant(err + 1e-15);  // plus the rounding of the sum
+  e.evals = n;
+  return e;
+}
+
+// Kulla & Conty 2017's energy compensation of rough glass: the glass tables
+// of both sides (as AddGlass), the Fresnel averages of both sides, and the
+// share x of the multiply scattered energy that crosses the interface,
+//   x = t / (1 + t),  t = eta^2 (1 - F_avg(1/eta)) (1 - E_avg(1/eta)) / ((1 - F_avg(eta)) (1 - E_avg(eta))),
+// the form of Imageworks' OSL dielectric and of MoonRay. Seen from inside
+// the share is 1 - x.
+void AddKullaConty(std::vector<PresetTable>& tables, std::vector<Job>& jobs, std::vector<Derived>& derived,
+                   const PresetOptions& o) {
+  const int n = o.size;
+  const PresetAxis rough = NodeAxis("roughness", n, 1e-4, 1), mu = NodeAxis("mu", n, 1e-4, 1);
+  const PresetAxis zior = NodeAxis("z", n, 1e-4, 0.99);
+  const std::size_t first = tables.size();
+  AddGlass(tables, jobs, "kc_glass_", {rough, mu, zior}, Quadrature(o), true);
+  const std::size_t avg_out = first + 1, avg_in = first + 3;
+  tables.push_back(NewTable("kc_Favg", "F_avg(z) = 2 int_0^1 F(mu, ior(z)) mu dmu, exact dielectric Fresnel, light from outside",
+                            {zior}, {"F"}));
+  const std::size_t f_out = tables.size() - 1;
+  tables.push_back(NewTable("kc_inv_Favg",
+                            "F_avg(z) = 2 int_0^1 F(mu, 1 / ior(z)) mu dmu = 1 - (1 - F_avg(ior)) / ior^2, light from inside",
+                            {zior}, {"F"}));
+  const std::size_t f_in = tables.size() - 1;
+  for (std::size_t z = 0; z < std::size_t(n); ++z) {
+    const double ior = IorOfZ(zior.evaluated[z]);
+    const bool matched = MatchedIndex(ior);
+    jobs.push_back({f_out, z, 0, [=] { return matched ? Exact(0) : FresnelAverage(ior); }, false});
+    // Reciprocity of the smooth interface: ior^2 (1 - F_avg(1 / ior)) = 1 - F_avg(ior).
+    jobs.push_back({f_in, z, 0, [=] {
+                      if (matched) return Exact(0);
+                      Estimate e = FresnelAverage(ior);
+                      e.value = 1 - (1 - e.value) / (ior * ior);
+                      e.error /= ior * ior;
+                      return e;
+                    }, false});
+  }
+  tables.push_back(NewTable("kc_x",
+                            "x(roughness, z) = t / (1 + t), t = eta^2 (1 - F_avg(1/eta)) (1 - E_avg(1/eta)) / ((1 - "
+                            "F_avg(eta)) (1 - E_avg(eta))), eta = ior(z): the share of the multiply scattered energy "
+                            "that is transmitted, light from outside (1 - x from inside)",
+                            {rough, zior}, {"x"}));
+  const std::size_t xt = tables.size() - 1;
+  derived.push_back({xt, {avg_out, avg_in, f_out, f_in}, [=](std::vector<PresetTable>& t) {
+                       const std::size_t nr = rough.coordinate.size();
+                       for (std::size_t z = 0; z < zior.coordinate.size(); ++z) {
+                         const double ior = IorOfZ(zior.evaluated[z]);
+                         for (std::size_t r = 0; r < nr; ++r) {
+                           const std::size_t k = z * nr + r;
+                           const double lo = 1 - t[avg_out].value[k], li = 1 - t[avg_in].value[k];
+                           const double eo = t[avg_out].error[k], ei = t[avg_in].error[k];
+                           const double to = 1 - t[f_out].value[z], ti = 1 - t[f_in].value[z];
+                           const double eto = t[f_out].error[z], eti = t[f_in].error[z];
+                           if (MatchedIndex(ior)) {
+                             // No interface: both sides alike, and t -> 1 as ior -> 1.
+                             t[xt].value[k] = 0.5;
+                             continue;
+                           }
+                           if (SmoothRoughness(rough.evaluated[r])) continue;  // filled below from the next node
+                           // x at the ends of every factor's interval: its range bounds the error.
+                           const auto x_of = [&](double a, double b, double c, double d) {
+                             const double tt = ior * ior * a * b / (c * d);
+                             return tt / (1 + tt);
+                           };
+                           const double x = x_of(ti, li, to, lo);
+                           double err = 0;
+                           if (!(lo - eo > 0 && li - ei > 0)) {
+                             err = std::max(x, 1 - x);  // a loss not resolved: x is anywhere in [0, 1]
+                           } else {
+                             const double hi = x_of(ti + eti, li + ei, to - eto, lo - eo);
+                             const double lw = x_of(ti - eti, li - ei, to + eto, lo + eo);
+                             err = std::max(hi - x, x - lw) + 1e-15;  // plus rounding
+                           }
+                           t[xt].value[k] = x;
+                           t[xt].error[k] = err;
+                         }
+                         // Roughness 0 loses nothing and x has no value there: the entry
+                         // repeats the next node's, so that interpolation between them is flat.
+                         for (std::size_t r = 0; r + 1 < nr; ++r)
+                           if (SmoothRoughness(rough.evaluated[r]) && !MatchedIndex(ior)) {
+                             std::size_t s = r + 1;
+                             while (s + 1 < nr && SmoothRoughness(rough.evaluated[s])) ++s;
+                             t[xt].value[z * nr + r] = t[xt].value[z * nr + s];
+                             t[xt].error[z * nr + r] = t[xt].error[z * nr + s];
+                           }
+                       }
+                     }});
+}
+
 void AddFilament(std::vector<PresetTable>& tables, std::vector<Job>& jobs, const PresetOptions& o) {
   const AlbedoQuadratureOptions q = Quadrature(o);
-  const int n = o.filament_size;
+  const int n = o.size;
   PresetAxis nov{"NoV", {}, {}}, rough{"roughness", {}, {}};
   for (int i = 0; i < n; ++i) {
     nov.coordinate.push_back((i + 0.5) / n);
@@ -338,30 +472,50 @@ void AddFilament(std::vector<PresetTable>& tables, std::vector<Job>& jobs, const
 
 }  // namespace
 
-std::vector<std::string> PresetNames() { return {"cycles", "filament"}; }
+std::vector<std::string> PresetNames() { return {"cycles", "filament", "kulla_conty"}; }
 
 namespace {
-// The tables of a preset and the jobs that fill them.
-void Plan(const std::string& name, const PresetOptions& options, std::vector<PresetTable>& tables,
-          std::vector<Job>& jobs) {
+// The tables of a preset, the jobs that fill them and the tables derived
+// from them; options.size resolved to the preset's default (0) and checked.
+void Plan(const std::string& name, PresetOptions options, std::vector<PresetTable>& tables, std::vector<Job>& jobs,
+          std::vector<Derived>& derived) {
+  options.size = PresetSize(name, options.size);
   if (name == "cycles") {
     AddCycles(tables, jobs, options);
   } else if (name == "filament") {
-    if (options.filament_size < 2 || options.filament_size > 4096)
-      throw ModelError("filament table size " + std::to_string(options.filament_size) + " is outside [2, 4096]");
     AddFilament(tables, jobs, options);
   } else {
-    throw ModelError("unknown table preset '" + name + "' (presets: cycles, filament)");
+    AddKullaConty(tables, jobs, derived, options);
   }
 }
 }  // namespace
 
+int PresetSize(const std::string& name, int size) {
+  const auto sized = [&](int fallback, int lo, int hi) {
+    if (size == 0) return fallback;
+    if (size < lo || size > hi)
+      throw ModelError("preset '" + name + "': size " + std::to_string(size) + " is outside [" + std::to_string(lo) +
+                       ", " + std::to_string(hi) + "]");
+    return size;
+  };
+  if (name == "cycles") {
+    if (size != 0)
+      throw ModelError("preset 'cycles' has Cycles' fixed sizes (32 and 16 nodes); size " + std::to_string(size) +
+                       " cannot be set");
+    return 0;
+  }
+  if (name == "filament") return sized(128, 2, 4096);
+  if (name == "kulla_conty") return sized(16, 3, 256);
+  throw ModelError("unknown table preset '" + name + "' (presets: cycles, filament, kulla_conty)");
+}
+
 std::vector<std::string> PresetTableNames(const std::string& name) {
   PresetOptions o;
-  o.filament_size = 2;
+  o.size = name == "cycles" ? 0 : 3;
   std::vector<PresetTable> tables;
   std::vector<Job> jobs;
-  Plan(name, o, tables, jobs);
+  std::vector<Derived> derived;
+  Plan(name, o, tables, jobs, derived);
   std::vector<std::string> names;
   for (const PresetTable& t : tables) names.push_back(t.name);
   return names;
@@ -372,17 +526,24 @@ Preset BuildPreset(const std::string& name, const PresetOptions& options) {
   Preset p;
   p.name = name;
   std::vector<Job> jobs;
-  Plan(name, options, p.tables, jobs);
+  std::vector<Derived> derived;
+  Plan(name, options, p.tables, jobs, derived);
   if (!options.tables.empty()) {
     std::string names;
     for (const PresetTable& t : p.tables) names += (names.empty() ? "" : ", ") + t.name;
     for (const std::string& want : options.tables)
       if (std::none_of(p.tables.begin(), p.tables.end(), [&](const PresetTable& t) { return t.name == want; }))
         throw ModelError("preset '" + name + "' has no table '" + want + "' (its tables: " + names + ")");
-    const auto unwanted = [&](std::size_t t) {
-      return std::find(options.tables.begin(), options.tables.end(), p.tables[t].name) == options.tables.end();
-    };
-    jobs.erase(std::remove_if(jobs.begin(), jobs.end(), [&](const Job& j) { return unwanted(j.table); }), jobs.end());
+    // The wanted tables and those a wanted derived table is made from.
+    std::vector<bool> needed(p.tables.size(), false);
+    for (std::size_t t = 0; t < p.tables.size(); ++t)
+      needed[t] = std::find(options.tables.begin(), options.tables.end(), p.tables[t].name) != options.tables.end();
+    for (const Derived& d : derived)
+      if (needed[d.table])
+        for (std::size_t in : d.inputs) needed[in] = true;
+    jobs.erase(std::remove_if(jobs.begin(), jobs.end(), [&](const Job& j) { return !needed[j.table]; }), jobs.end());
+    derived.erase(std::remove_if(derived.begin(), derived.end(), [&](const Derived& d) { return !needed[d.table]; }),
+                  derived.end());
   }
   std::stable_partition(jobs.begin(), jobs.end(), [](const Job& j) { return j.average; });
   std::atomic<std::size_t> done{0};
@@ -408,6 +569,7 @@ Preset BuildPreset(const std::string& name, const PresetOptions& options) {
         for (std::size_t k = range.begin(); k < range.end(); ++k) run(jobs[k]);
       },
       tbb::simple_partitioner());
+  for (const Derived& d : derived) d.fill(p.tables);
   if (!options.tables.empty()) {
     // Pruned only now: the jobs index the full list.
     std::vector<PresetTable> kept;
@@ -524,16 +686,47 @@ void WritePresetHeader(const Preset& p, const std::string& path) {
     WriteFileAtomic(path, s.str());
     return;
   }
-  s << " * Blender Cycles' microfacet albedo tables (src/scene/shader.tables), in its layout: the first\n"
-    << " * axis runs fastest, element [z nx ny + y nx + x]; node k of an axis of N nodes is k / (N - 1)\n"
-    << " * and lookups map coordinate 0 and 1 onto the first and last node (kernel/util/lookup_table.h).\n"
-    << " * roughness: alpha = roughness^2; mu = cos(theta); z = F0^(1/4), ior = (1 + z^2) / (1 - z^2).\n"
-    << " * Entries are evaluated where Cycles' generator evaluates them (mu and roughness at least 1e-4,\n"
-    << " * z in [1e-4, 0.99]; roughness 0 as a smooth surface and z 0 as a matched index).\n";
+  if (p.name == "cycles") {
+    s << " * Blender Cycles' microfacet albedo tables (src/scene/shader.tables), in its layout: the first\n"
+      << " * axis runs fastest, element [z nx ny + y nx + x]; node k of an axis of N nodes is k / (N - 1)\n"
+      << " * and lookups map coordinate 0 and 1 onto the first and last node (kernel/util/lookup_table.h).\n"
+      << " * roughness: alpha = roughness^2; mu = cos(theta); z = F0^(1/4), ior = (1 + z^2) / (1 - z^2).\n"
+      << " * Entries are evaluated where Cycles' generator evaluates them (mu and roughness at least 1e-4,\n"
+      << " * z in [1e-4, 0.99]; roughness 0 as a smooth surface and z 0 as a matched index).\n";
+  } else {
+    s << " * Kulla & Conty 2017 energy compensation of rough glass (GGX, height-correlated Smith). The\n"
+      << " * first axis runs fastest, element [z nx ny + y nx + x]; node k of an axis of N nodes is\n"
+      << " * k / (N - 1), looked up by kc_lookup below (clamped, linear between nodes).\n"
+      << " * roughness: alpha = roughness^2; mu = cos(theta); z = F0^(1/4), ior = (1 + z^2) / (1 - z^2).\n"
+      << " * Entries are evaluated at mu and roughness at least 1e-4 and z in [1e-4, 0.99]; roughness 0\n"
+      << " * is a smooth surface and z 0 a matched index (E = 1, F_avg = 0, x = 1/2 there); x at\n"
+      << " * roughness 0, where nothing is lost, repeats the next node.\n"
+      << " * The compensation lobe seen from outside: reflection c_R (1 - E(mu_o)) (1 - E(mu_i)) /\n"
+      << " * (pi (1 - E_avg)), transmission c_T (1 - E(mu_o)) (1 - E_inv(mu_i)) / (pi (1 - E_inv_avg)),\n"
+      << " * c_T = x (1 - F_avg), c_R = 1 - c_T; from inside swap the sides and use 1 - x.\n";
+  }
   for (const PresetTable& t : p.tables) s << " *   " << t.name << " [" << AxesText(t) << "]: " << t.definition << "\n";
-  s << " */\n#ifndef BRDFKIT_CYCLES_TABLES_H\n#define BRDFKIT_CYCLES_TABLES_H\n\n";
+  std::string guard = "BRDFKIT_" + p.name + "_TABLES_H";
+  std::transform(guard.begin(), guard.end(), guard.begin(), [](unsigned char c) { return char(std::toupper(c)); });
+  s << " */\n#ifndef " << guard << "\n#define " << guard << "\n\n";
   for (const PresetTable& t : p.tables)
     s << "static const float " << t.name << "[" << t.value.size() << "] = {\n" << ArrayBody(p, t) << "};\n\n";
+  if (p.name != "cycles")
+    s << "/* Clamped multilinear lookup (C99, C++) in a table of dims axes (1 to 3), n nodes each at\n"
+      << " * k / (n - 1), the first coordinate fastest, e.g. kc_lookup(kc_glass_E, " << p.tables[0].axes[0].coordinate.size()
+      << ", 3, roughness, mu, z). */\n"
+      << "static inline float kc_lookup(const float *table, int n, int dims, float x, float y, float z) {\n"
+      << "  float c[3], w[3], sum = 0.0f;\n  int i[3], d, k;\n  c[0] = x; c[1] = y; c[2] = z;\n"
+      << "  for (d = 0; d < 3; ++d) {\n"
+      << "    float u = d < dims ? c[d] : 0.0f;\n"
+      << "    u = (u < 0.0f ? 0.0f : (u > 1.0f ? 1.0f : u)) * (float)(n - 1);\n"
+      << "    i[d] = (int)u;\n    if (i[d] > n - 2) i[d] = n - 2;\n    w[d] = u - (float)i[d];\n  }\n"
+      << "  for (k = 0; k < (1 << dims); ++k) {\n"
+      << "    float wt = 1.0f;\n    int at = 0, stride = 1;\n"
+      << "    for (d = 0; d < dims; ++d) {\n"
+      << "      const int b = (k >> d) & 1;\n"
+      << "      wt *= b ? w[d] : 1.0f - w[d];\n      at += (i[d] + b) * stride;\n      stride *= n;\n    }\n"
+      << "    sum += wt * table[at];\n  }\n  return sum;\n}\n\n";
   s << "#endif\n";
   WriteFileAtomic(path, s.str());
 }

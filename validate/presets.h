@@ -31,6 +31,19 @@
 //   R = int f_ss(F = (1 - v.h)^5) NoL dl, G = int f_ss(F = 1) NoL dl (GGX,
 //   height-correlated Smith), B = int D_Charlie V_Neubelt NoL dl (the cloth
 //   lobe: Estevez & Kulla 2017, Neubelt & Pettineo 2013).
+//
+// "kulla_conty": Kulla & Conty 2017's energy compensation of rough glass
+// (ggx_glass_correlated), N nodes per axis k / (N - 1) (PresetOptions::size,
+// default 16) of roughness, mu and z as Cycles' glass tables:
+//   kc_glass_E, kc_glass_inv_E          E_R + E_T, eta = ior(z) and 1 / ior(z)
+//   kc_glass_Eavg, kc_glass_inv_Eavg    their averages over mu, each to
+//                                       2 tol (1 - E_avg) below a loss of 1/2
+//   kc_Favg, kc_inv_Favg                F_avg of the exact Fresnel term, both sides
+//   kc_x                                x = t / (1 + t), t = eta^2 (1 - F_avg(1/eta))
+//                                       (1 - E_avg(1/eta)) / ((1 - F_avg(eta)) (1 - E_avg(eta))):
+//                                       the transmitted share of the multiple scattering
+// x is 1/2 at z node 0 (matched index) and repeats node 1 at roughness 0,
+// where nothing is lost.
 #pragma once
 
 #include <cstddef>
@@ -71,15 +84,21 @@ struct Preset {
 
 struct PresetOptions {
   double abs_tolerance = 1e-7;  // on every entry
-  int filament_size = 128;      // N of the DFG texture (Filament ships 128, 64 on mobile)
+  // Nodes per axis; 0: the preset's default (filament: 128, as Filament
+  // ships, 64 on mobile; kulla_conty: 16). Cycles' sizes are fixed.
+  int size = 0;
   std::vector<std::string> tables;  // only these tables of the preset (by array name); empty: all
   // Called from the worker threads with the entries done and the total; an
   // exception it throws stops the build and propagates.
   std::function<void(std::size_t done, std::size_t total)> progress;
 };
 
-// "cycles", "filament".
+// "cycles", "filament", "kulla_conty".
 std::vector<std::string> PresetNames();
+// The nodes per axis of a preset for PresetOptions::size (0: its default).
+// Throws ModelError, naming the preset and the accepted range, for a size
+// the preset does not take (any for cycles), or for an unknown name.
+int PresetSize(const std::string& name, int size);
 // Throws ModelError for an unknown name, naming the presets, or for a name
 // in options.tables the preset does not have, naming its tables.
 Preset BuildPreset(const std::string& name, const PresetOptions& options = {});

@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <tuple>
 
 #include "brdf/microfacet.h"
 #include "brdf/model.h"
@@ -130,17 +131,18 @@ TEST(CyclesPreset, GeneralisedSchlickTablesHoldTheLimitsAndAgreeWithTheShippedOn
 }
 
 // The error estimates are never below the true error: the entries against
-// the same tables at a tolerance a thousand times tighter.
+// the same tables at a tolerance a hundred or a thousand times tighter.
 TEST(Presets, ErrorEstimatesBoundTheDifferenceToATighterTable) {
-  for (const std::string name : {"filament", "cycles"}) {
+  for (const std::string name : {"filament", "cycles", "kulla_conty"}) {
     PresetOptions loose, tight;
-    loose.filament_size = tight.filament_size = 8;
-    loose.tables = tight.tables = name == "cycles" ? std::vector<std::string>{"table_ggx_E", "table_ggx_gen_schlick_s"}
-                                                   : std::vector<std::string>{};
-    tight.abs_tolerance = 1e-10;
+    loose.size = tight.size = name == "filament" ? 8 : name == "kulla_conty" ? 3 : 0;
+    if (name == "cycles") loose.tables = tight.tables = {"table_ggx_E", "table_ggx_gen_schlick_s"};
+    if (name == "kulla_conty") loose.tables = tight.tables = {"kc_x", "kc_inv_Favg"};
+    if (name == "kulla_conty") loose.abs_tolerance = 1e-6;
+    tight.abs_tolerance = name == "kulla_conty" ? 1e-8 : 1e-10;
     const Preset a = BuildPreset(name, loose), b = BuildPreset(name, tight);
     ASSERT_EQ(a.tables.size(), b.tables.size());
-    EXPECT_LE(b.max_error, 1e-10);
+    EXPECT_LE(b.max_error, tight.abs_tolerance);
     for (std::size_t t = 0; t < a.tables.size(); ++t)
       for (std::size_t k = 0; k < a.tables[t].value.size(); ++k)
         EXPECT_LE(std::abs(a.tables[t].value[k] - b.tables[t].value[k]), a.tables[t].error[k] + b.tables[t].error[k])
@@ -152,7 +154,7 @@ TEST(Presets, ErrorEstimatesBoundTheDifferenceToATighterTable) {
 // vector h = (theta, phi): l = 2 (v.h) h - v, dl = 4 (v.h) dh.
 TEST(FilamentPreset, ChannelsAreTheSplitSumAndClothIntegrals) {
   PresetOptions o;
-  o.filament_size = 8;
+  o.size = 8;
   const Preset p = BuildPreset("filament", o);
   ASSERT_EQ(p.tables.size(), 1u);
   const PresetTable& t = p.tables[0];
@@ -194,7 +196,7 @@ TEST(FilamentPreset, ChannelsAreTheSplitSumAndClothIntegrals) {
 
 TEST(FilamentPreset, IncFileIsCmgensLayoutOfHalfFloats) {
   PresetOptions o;
-  o.filament_size = 8;
+  o.size = 8;
   const Preset p = BuildPreset("filament", o);
   const std::filesystem::path dir = std::filesystem::temp_directory_path() / "brdfkit_presets_test";
   std::filesystem::create_directories(dir);
@@ -226,6 +228,106 @@ TEST(FilamentPreset, IncFileIsCmgensLayoutOfHalfFloats) {
   std::filesystem::remove_all(dir);
 }
 
+// The classical closed form of the cosine-weighted hemispherical average of
+// the unpolarised dielectric Fresnel reflectance, light arriving from the
+// rarer side (relative index n > 1).
+double FresnelAverageClosedForm(long double n) {
+  const long double n2 = n * n, n4 = n2 * n2;
+  return double(0.5L + (n - 1) * (3 * n + 1) / (6 * (n + 1) * (n + 1)) +
+                n2 * (n2 - 1) * (n2 - 1) / ((n2 + 1) * (n2 + 1) * (n2 + 1)) * std::log((n - 1) / (n + 1)) -
+                2 * n2 * n * (n2 + 2 * n - 1) / ((n2 + 1) * (n4 - 1)) +
+                8 * n4 * (n4 + 1) / ((n2 + 1) * (n4 - 1) * (n4 - 1)) * std::log(n));
+}
+
+TEST(KullaContyPreset, FresnelAveragesAreTheClosedFormAndTheInsideIntegral) {
+  PresetOptions o;
+  o.size = 6;
+  o.tables = {"kc_Favg", "kc_inv_Favg"};
+  const Preset p = BuildPreset("kulla_conty", o);
+  const PresetTable& out = Find(p, "kc_Favg");
+  const PresetTable& in = Find(p, "kc_inv_Favg");
+  ASSERT_EQ(out.value.size(), 6u);
+  EXPECT_EQ(out.value[0], 0.0);  // z = 0: a matched index reflects nothing
+  EXPECT_EQ(in.value[0], 0.0);
+  for (std::size_t z = 1; z < 6; ++z) {
+    const double zz = std::min(0.99, z / 5.0), ior = (1 + zz * zz) / (1 - zz * zz);
+    EXPECT_NEAR(out.value[z], FresnelAverageClosedForm(ior), 1e-11 + out.error[z]) << "ior " << ior;
+    // From inside, 2 int F(mu, 1 / ior) mu dmu: F = 1 below the critical
+    // cosine mu_c; above it, mu = mu_c + s^2 makes the integrand smooth in s.
+    const double eta = 1 / ior, mu_c = std::sqrt(1 - eta * eta), s1 = std::sqrt(1 - mu_c);
+    double sum = mu_c * mu_c;
+    const int n = 200000;
+    for (int k = 0; k < n; ++k) {
+      const double s = s1 * (k + 0.5) / n, mu = mu_c + s * s;
+      sum += 2 * mu * FresnelDielectric(eta, mu) * 2 * s * s1 / n;
+    }
+    EXPECT_NEAR(in.value[z], sum, 1e-9 + in.error[z]) << "ior " << ior;
+  }
+  // Glass, ior 1.5: 0.0918 outside, 0.596 inside (the classic values).
+  EXPECT_NEAR(FresnelAverageClosedForm(1.5), 0.09178, 1e-5);
+}
+
+// x = t / (1 + t) with t = eta^2 (1 - F_avg(1/eta)) (1 - E_avg(1/eta)) /
+// ((1 - F_avg(eta)) (1 - E_avg(eta))); the smooth interface's reciprocity
+// eta^2 (1 - F_avg(1/eta)) = 1 - F_avg(eta) reduces t to the ratio of the
+// losses of the two sides, computed here from the glass averages.
+TEST(KullaContyPreset, TransmittedShareIsTheRatioOfTheLossesOfBothSides) {
+  PresetOptions o;
+  o.size = 3;
+  const Preset p = BuildPreset("kulla_conty", o);
+  EXPECT_LE(p.max_error, 1e-7);
+  const PresetTable& x = Find(p, "kc_x");
+  const PresetTable& out = Find(p, "kc_glass_Eavg");
+  const PresetTable& in = Find(p, "kc_glass_inv_Eavg");
+  ASSERT_EQ(x.value.size(), 9u);
+  for (std::size_t z = 0; z < 3; ++z) {
+    EXPECT_EQ(x.value[z * 3], x.value[z * 3 + 1]) << "roughness 0 repeats the next node";
+    for (std::size_t r = 0; r < 3; ++r) {
+      const std::size_t k = z * 3 + r;
+      if (z == 0) {
+        EXPECT_EQ(x.value[k], 0.5);  // matched index: both sides alike
+        EXPECT_EQ(out.value[k], 1.0);
+        continue;
+      }
+      if (r == 0) continue;
+      const double lo = 1 - out.value[k], li = 1 - in.value[k];
+      EXPECT_GT(lo, 0.01);
+      EXPECT_NEAR(x.value[k], li / (li + lo), x.error[k] + 1e-12) << "node " << k;
+      EXPECT_LE(x.error[k], 1e-7);
+      EXPECT_GT(x.value[k], 0.5) << "the denser side loses more: it has total internal reflection";
+    }
+  }
+}
+
+// The generalised reciprocity of the rough glass BSDF, f(wi, wo) / eta_o^2 =
+// f(wo, wi) / eta_i^2, makes the hemispherical transmittances of the two
+// sides differ by eta^2: E_T,avg(eta) = eta^2 E_T,avg(1 / eta). The two
+// averages come from different rules (light refracted into the denser side,
+// and out of it past total internal reflection).
+TEST(KullaContyPreset, TransmittancesOfTheTwoSidesDifferByEtaSquared) {
+  for (const auto& [alpha, eta] : std::vector<std::pair<double, double>>{{0.25, 1.5}, {0.6, 2.2}}) {
+    const Model m = Model::Parse("ggx_glass_correlated");
+    const auto bxdf = m.Make<double>();
+    std::vector<double> po = m.Info().Defaults(), pi = po;
+    for (std::size_t i = 0; i < m.Info().params.size(); ++i) {
+      if (m.Info().params[i].name == "alpha") po[m.Info().Offset(i)] = pi[m.Info().Offset(i)] = alpha;
+      if (m.Info().params[i].name == "eta") {
+        po[m.Info().Offset(i)] = eta;
+        pi[m.Info().Offset(i)] = 1 / eta;
+      }
+    }
+    AlbedoQuadratureOptions q;
+    q.abs_tolerance = 1e-7;
+    q.max_evals = 4000000;
+    q.part = AlbedoQuadratureOptions::Part::kTransmitted;
+    LobeShape shape;
+    shape.width = alpha;
+    const AlbedoValue to = AverageAlbedo(*bxdf, po.data(), shape, q), ti = AverageAlbedo(*bxdf, pi.data(), shape, q);
+    EXPECT_NEAR(to.value[0], eta * eta * ti.value[0], to.error[0] + eta * eta * ti.error[0] + 1e-12)
+        << "alpha " << alpha << ", eta " << eta;
+  }
+}
+
 TEST(Presets, HalfBitsRoundToNearestEven) {
   EXPECT_EQ(HalfBits(1.0), 0x3c00);
   EXPECT_EQ(HalfBits(0.5), 0x3800);
@@ -252,6 +354,20 @@ TEST(Presets, UnknownNamesAreRefusedWithTheChoices) {
   } catch (const ModelError& e) {
     EXPECT_NE(std::string(e.what()).find("table_ggx_F"), std::string::npos) << e.what();
     EXPECT_NE(std::string(e.what()).find("table_ggx_glass_inv_Eavg"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(PresetSize("kulla_conty", 0), 16);
+  EXPECT_EQ(PresetSize("filament", 0), 128);
+  EXPECT_EQ(PresetSize("filament", 64), 64);
+  for (const auto& [name, size, says] : std::vector<std::tuple<std::string, int, std::string>>{
+           {"kulla_conty", 2, "size 2 is outside [3, 256]"},
+           {"filament", 5000, "size 5000 is outside [2, 4096]"},
+           {"cycles", 16, "fixed sizes"}}) {
+    try {
+      PresetSize(name, size);
+      ADD_FAILURE() << name << " took size " << size;
+    } catch (const ModelError& e) {
+      EXPECT_NE(std::string(e.what()).find(says), std::string::npos) << e.what();
+    }
   }
 }
 
