@@ -255,6 +255,10 @@ TEST(Cli, PresetHeadersCompileAndHoldTheJsonValues) {
       "  for (i = 0; i < 3; ++i) printf(\"%.9g\\n%.9g\\n\", (double)kc_lookup(kc_Favg, 3, 1, i / 2.0f, 0, 0),\n"
       "                                (double)kc_lookup(kc_inv_Favg, 3, 1, i / 2.0f, 0, 0));\n"
       "  printf(\"%.9g\\n\", (double)kc_lookup(kc_Favg, 3, 1, 0.75f, 0, 0));\n"
+      "  for (i = 0; i < 32; ++i) printf(\"%.9g\\n\", (double)cycles_table_lookup(table_ggx_Eavg, 32, 1, i / 31.0f, 0, 0));\n"
+      "  printf(\"%.9g\\n\", (double)cycles_table_lookup(table_ggx_gen_schlick_s, 16, 3, 3 / 15.0f, 7 / 15.0f, 11 / 15.0f));\n"
+      "  for (i = 0; i < 16; ++i) printf(\"%.9g\\n\", (double)dfg_lookup(((i % 4) + 0.5f) / 4, ((i / 4) + 0.5f) / 4, 1));\n"
+      "  printf(\"%.9g\\n\", (double)dfg_lookup(0.5f, 0.5f, 0));\n"
       "  return (int)bad;\n}\n";
   WriteText(dir / "main.c", prog);
   WriteText(dir / "main.cpp", prog);
@@ -270,6 +274,14 @@ TEST(Cli, PresetHeadersCompileAndHoldTheJsonValues) {
   for (std::size_t i = 0; i < 3; ++i)
     for (std::size_t t = 0; t < 2; ++t) lookups.push_back(jk["tables"][t]["value"][i].get<double>());
   lookups.push_back(0.5 * (lookups[2] + lookups[4]));
+  // Cycles' lookups at the nodes of table_ggx_Eavg and at node (3, 7, 11) of gen_schlick_s; Filament's
+  // G at the 16 texel centres, then R at the centre of the texture (the mean of the four middle texels).
+  for (std::size_t i = 0; i < 32; ++i) lookups.push_back(jc["tables"][0]["value"][i].get<double>());
+  lookups.push_back(jc["tables"][1]["value"][(11 * 16 + 7) * 16 + 3].get<double>());
+  const auto& dfg = jf["tables"][0]["value"];
+  for (std::size_t i = 0; i < 16; ++i) lookups.push_back(dfg[3 * i + 1].get<double>());
+  lookups.push_back(0.25 * (dfg[3 * 5].get<double>() + dfg[3 * 6].get<double>() + dfg[3 * 9].get<double>() +
+                            dfg[3 * 10].get<double>()));
   for (const std::string compiler : {"gcc -x c -std=c99", "g++ -x c++ -std=c++11", "clang -x c -std=c11",
                                      "clang++ -x c++ -std=c++20"}) {
     const bool cpp = compiler.find("++") != std::string::npos;
@@ -294,7 +306,9 @@ TEST(Cli, PresetHeadersCompileAndHoldTheJsonValues) {
     }
     for (std::size_t k = 0; k < lookups.size(); ++k) {
       ASSERT_TRUE(std::getline(got, line)) << "fewer lookups than asked for";
-      EXPECT_NEAR(std::stod(line), lookups[k], 1e-7) << compiler << " lookup " << k;
+      // Filament's entries are halves (relative 2^-11).
+      const double tol = k + 17 >= lookups.size() ? std::ldexp(std::abs(lookups[k]), -10) : 1e-6;
+      EXPECT_NEAR(std::stod(line), lookups[k], tol) << compiler << " lookup " << k;
     }
   }
   // A preset takes no model or axes; the sizes are checked.

@@ -682,14 +682,32 @@ void WritePresetHeader(const Preset& p, const std::string& path) {
       << "#ifndef BRDFKIT_FILAMENT_DFG_H\n#define BRDFKIT_FILAMENT_DFG_H\n\n#include <stdint.h>\n\n"
       << "#define DFG_LUT_SIZE " << n << "\n\n"
       << "static const uint16_t DFG_LUT[" << t.value.size() << "] = {\n"
-      << ArrayBody(p, t) << "};\n\n#endif\n";
+      << ArrayBody(p, t) << "};\n\n"
+      << "/* Channel c (0 R, 1 G, 2 B) of the texture at (NoV, perceptual roughness) in [0, 1]^2, as the\n"
+      << " * shader's linear filter with clamp to edge samples it (texel centres at (i + 0.5) / N). C99, C++. */\n"
+      << "static inline float dfg_lookup(float nov, float roughness, int c) {\n"
+      << "  float u[2], w[2], sum = 0.0f;\n  int i[2], d, k;\n  u[0] = nov; u[1] = roughness;\n"
+      << "  for (d = 0; d < 2; ++d) {\n"
+      << "    float x = u[d] * (float)DFG_LUT_SIZE - 0.5f;\n"
+      << "    x = x < 0.0f ? 0.0f : (x > (float)(DFG_LUT_SIZE - 1) ? (float)(DFG_LUT_SIZE - 1) : x);\n"
+      << "    i[d] = (int)x;\n    if (i[d] > DFG_LUT_SIZE - 2) i[d] = DFG_LUT_SIZE - 2;\n    w[d] = x - (float)i[d];\n  }\n"
+      << "  for (k = 0; k < 4; ++k) {\n"
+      << "    const int a = k & 1, b = k >> 1;\n"
+      << "    const unsigned h = DFG_LUT[3 * ((i[1] + b) * DFG_LUT_SIZE + i[0] + a) + c];\n"
+      << "    const unsigned e = (h >> 10) & 31u, m = h & 1023u;\n"
+      << "    /* IEEE half: subnormal m 2^-24, normal (1024 + m) 2^(e - 25). */\n"
+      << "    float v = e ? (float)(1024u + m) * (float)(1u << e) / 33554432.0f : (float)m / 16777216.0f;\n"
+      << "    if (h & 0x8000u) v = -v;\n"
+      << "    sum += (a ? w[0] : 1.0f - w[0]) * (b ? w[1] : 1.0f - w[1]) * v;\n  }\n"
+      << "  return sum;\n}\n\n#endif\n";
     WriteFileAtomic(path, s.str());
     return;
   }
   if (p.name == "cycles") {
     s << " * Blender Cycles' microfacet albedo tables (src/scene/shader.tables), in its layout: the first\n"
       << " * axis runs fastest, element [z nx ny + y nx + x]; node k of an axis of N nodes is k / (N - 1)\n"
-      << " * and lookups map coordinate 0 and 1 onto the first and last node (kernel/util/lookup_table.h).\n"
+      << " * and lookups map coordinate 0 and 1 onto the first and last node (kernel/util/lookup_table.h;\n"
+      << " * cycles_table_lookup below).\n"
       << " * roughness: alpha = roughness^2; mu = cos(theta); z = F0^(1/4), ior = (1 + z^2) / (1 - z^2).\n"
       << " * Entries are evaluated where Cycles' generator evaluates them (mu and roughness at least 1e-4,\n"
       << " * z in [1e-4, 0.99]; roughness 0 as a smooth surface and z 0 as a matched index).\n";
@@ -711,22 +729,25 @@ void WritePresetHeader(const Preset& p, const std::string& path) {
   s << " */\n#ifndef " << guard << "\n#define " << guard << "\n\n";
   for (const PresetTable& t : p.tables)
     s << "static const float " << t.name << "[" << t.value.size() << "] = {\n" << ArrayBody(p, t) << "};\n\n";
-  if (p.name != "cycles")
-    s << "/* Clamped multilinear lookup (C99, C++) in a table of dims axes (1 to 3), n nodes each at\n"
-      << " * k / (n - 1), the first coordinate fastest, e.g. kc_lookup(kc_glass_E, " << p.tables[0].axes[0].coordinate.size()
-      << ", 3, roughness, mu, z). */\n"
-      << "static inline float kc_lookup(const float *table, int n, int dims, float x, float y, float z) {\n"
-      << "  float c[3], w[3], sum = 0.0f;\n  int i[3], d, k;\n  c[0] = x; c[1] = y; c[2] = z;\n"
-      << "  for (d = 0; d < 3; ++d) {\n"
-      << "    float u = d < dims ? c[d] : 0.0f;\n"
-      << "    u = (u < 0.0f ? 0.0f : (u > 1.0f ? 1.0f : u)) * (float)(n - 1);\n"
-      << "    i[d] = (int)u;\n    if (i[d] > n - 2) i[d] = n - 2;\n    w[d] = u - (float)i[d];\n  }\n"
-      << "  for (k = 0; k < (1 << dims); ++k) {\n"
-      << "    float wt = 1.0f;\n    int at = 0, stride = 1;\n"
-      << "    for (d = 0; d < dims; ++d) {\n"
-      << "      const int b = (k >> d) & 1;\n"
-      << "      wt *= b ? w[d] : 1.0f - w[d];\n      at += (i[d] + b) * stride;\n      stride *= n;\n    }\n"
-      << "    sum += wt * table[at];\n  }\n  return sum;\n}\n\n";
+  const std::string lookup = p.name == "cycles" ? "cycles_table_lookup" : "kc_lookup";
+  s << "/* Clamped multilinear lookup (C99, C++) in a table of dims axes (1 to 3), n nodes each at\n"
+    << " * k / (n - 1), the first coordinate fastest, e.g. " << lookup << "(" << p.tables[0].name << ", "
+    << p.tables[0].axes[0].coordinate.size() << ", " << p.tables[0].axes.size() << ", "
+    << p.tables[0].axes[0].name << ", " << (p.tables[0].axes.size() > 1 ? p.tables[0].axes[1].name : "0") << ", "
+    << (p.tables[0].axes.size() > 2 ? p.tables[0].axes[2].name : "0") << ")"
+    << (p.name == "cycles" ? ", as kernel/util/lookup_table.h reads them" : "") << ". */\n"
+    << "static inline float " << lookup << "(const float *table, int n, int dims, float x, float y, float z) {\n"
+    << "  float c[3], w[3], sum = 0.0f;\n  int i[3], d, k;\n  c[0] = x; c[1] = y; c[2] = z;\n"
+    << "  for (d = 0; d < 3; ++d) {\n"
+    << "    float u = d < dims ? c[d] : 0.0f;\n"
+    << "    u = (u < 0.0f ? 0.0f : (u > 1.0f ? 1.0f : u)) * (float)(n - 1);\n"
+    << "    i[d] = (int)u;\n    if (i[d] > n - 2) i[d] = n - 2;\n    w[d] = u - (float)i[d];\n  }\n"
+    << "  for (k = 0; k < (1 << dims); ++k) {\n"
+    << "    float wt = 1.0f;\n    int at = 0, stride = 1;\n"
+    << "    for (d = 0; d < dims; ++d) {\n"
+    << "      const int b = (k >> d) & 1;\n"
+    << "      wt *= b ? w[d] : 1.0f - w[d];\n      at += (i[d] + b) * stride;\n      stride *= n;\n    }\n"
+    << "    sum += wt * table[at];\n  }\n  return sum;\n}\n\n";
   s << "#endif\n";
   WriteFileAtomic(path, s.str());
 }
