@@ -9,6 +9,7 @@
 namespace brdfkit::validate {
 struct CheckResult;
 struct AlbedoTable;
+struct Preset;
 }
 namespace brdfkit::fit {
 struct Result;
@@ -30,6 +31,8 @@ void ParseFitLoss(const std::string& text, fit::Options& o);
 
 // cmd_albedo.cpp: the JSON of `brdfkit albedo --json`.
 nlohmann::json AlbedoTableJson(const validate::AlbedoTable& t);
+// cmd_albedo.cpp: the JSON of `brdfkit albedo --preset NAME --json`.
+nlohmann::json PresetJson(const validate::Preset& p);
 
 // cmd_stress.cpp: the JSON of `brdfkit stress --json` for registered model
 // names (empty: every model), an optional MERL file for the merl model, and

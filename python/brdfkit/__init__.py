@@ -23,7 +23,7 @@ import os as _os
 from ._brdfkit import Model, PythonModel, Tabulated, models
 from . import _brdfkit
 
-__all__ = ["Model", "PythonModel", "Tabulated", "models", "check", "albedo_table", "synth", "fit", "stress", "read", "write", "FORMATS"]
+__all__ = ["Model", "PythonModel", "Tabulated", "models", "check", "albedo_table", "albedo_preset", "synth", "fit", "stress", "read", "write", "FORMATS"]
 
 
 def _existing(path, what):
@@ -111,6 +111,54 @@ def albedo_table(model, params=None, *, axes="mu:32,alpha:32:0.001:1", nodes="un
     for a in t["axes"]:
         a["nodes"] = np.asarray(a["nodes"], dtype=float)
     return t
+
+
+def albedo_preset(name, *, size=0, tables=None, tolerance=1e-7, accept_error=None, threads=0):
+    """A renderer's table set, as ``brdfkit albedo --preset NAME --json``.
+
+    Parameters
+    ----------
+    name : {"cycles", "filament", "kulla_conty"}
+    size : int
+        Nodes per axis of ``filament`` (default 128) and ``kulla_conty``
+        (3 to 256, default 16); 0 takes the default. Cycles' sizes are fixed.
+    tables : list of str, optional
+        Only these tables (array names).
+    tolerance : float
+        Absolute error target per entry (the presets' 1e-7 by default); a
+        table with an entry above it raises ValueError naming the entries.
+    accept_error : float, optional
+        Accept entries whose error estimate is up to this instead.
+    threads : int
+        Threads (0: every core).
+
+    Returns
+    -------
+    dict
+        preset, max_error, seconds and tables: {array name: {definition,
+        axes (name, nodes, evaluated), channels, value, error}}. value and
+        error are numpy arrays indexed slowest axis first, the renderer's
+        array order: [z, mu, roughness] for Cycles' glass tables, [row,
+        texel, channel] for Filament's; a channel axis only where there are
+        several.
+    """
+    import numpy as np
+
+    r = _brdfkit._albedo_preset(name, size, list(tables or []), tolerance,
+                                0.0 if accept_error is None else accept_error, threads)
+    out = {}
+    for t in r["tables"]:
+        shape = tuple(len(a["nodes"]) for a in reversed(t["axes"]))
+        if len(t["channels"]) > 1:
+            shape += (len(t["channels"]),)
+        for key in ("value", "error"):
+            t[key] = np.asarray(t[key], dtype=float).reshape(shape)
+        for a in t["axes"]:
+            a["nodes"] = np.asarray(a["nodes"], dtype=float)
+            a["evaluated"] = np.asarray(a["evaluated"], dtype=float)
+        out[t.pop("name")] = t
+    r["tables"] = out
+    return r
 
 
 def synth(model, params=None, *, instrument=None, seed=0, out=(), threads=0):

@@ -74,6 +74,10 @@ def albedo_table(model: Union[Model, str, PythonModel], params: Params = None, *
                  channel: int = 0, part: str = "total", threads: int = 0) -> dict[str, Any]:
     """Albedo tables, as ``brdfkit albedo --json`` (tables as numpy arrays)."""
 
+def albedo_preset(name: str, *, size: int = 0, tables: Optional[Sequence[str]] = None, tolerance: float = 1e-7,
+                  accept_error: Optional[float] = None, threads: int = 0) -> dict[str, Any]:
+    """A renderer's table set, as ``brdfkit albedo --preset NAME --json`` (values as numpy arrays)."""
+
 def synth(model: AnyModel, params: Params = None, *, instrument: Union[None, PathArg, dict] = None,
           seed: int = 0, out: Union[PathArg, Sequence[PathArg]] = (), threads: int = 0) -> dict[str, Any]:
     """A synthetic measurement: the FILE.json content plus arrays wi, wo, f, sigma, valid, saturated."""

@@ -17,6 +17,7 @@
 #include "python/src/common.h"
 #include "validate/albedo.h"
 #include "validate/check.h"
+#include "validate/presets.h"
 
 namespace brdfkit::python {
 
@@ -78,6 +79,26 @@ py::dict AlbedoTableFn(const py::object& model, const py::object& params, const 
                         "\nNarrow the parameter range (an alpha axis such as alpha:32:0.001:1), or accept a looser "
                         "table with accept_error=.");
   return ToPython(cli::AlbedoTableJson(t));
+}
+
+py::dict AlbedoPreset(const std::string& name, int size, const std::vector<std::string>& tables, double tolerance,
+                      double accept_error, int threads) {
+  if (!(tolerance >= 1e-12 && tolerance <= 1e-2))
+    throw ArgumentError("tolerance must lie in [1e-12, 1e-2] (got " + FormatDouble(tolerance) + ")");
+  validate::PresetOptions o;
+  o.size = size;
+  o.tables = tables;
+  o.abs_tolerance = tolerance;
+  validate::PresetSize(name, size);  // an unknown name or a size the preset does not take, before any work
+  validate::Preset p;
+  RunReleased(threads, [&](const CancelToken& token) {
+    o.progress = [&token](std::size_t, std::size_t) { token.ThrowIfCancelled(); };
+    p = validate::BuildPreset(name, o);
+  });
+  const double accepted = std::max(accept_error, tolerance);
+  const std::string misses = validate::DescribePresetMisses(p, accepted);
+  if (!misses.empty()) throw ArgumentError(misses + "\nAccept a looser table with accept_error=.");
+  return ToPython(cli::PresetJson(p));
 }
 
 synth::Instrument InstrumentArgument(const py::object& instrument) {
@@ -378,6 +399,8 @@ void BindTools(py::module_& m) {
         py::arg("random_pairs"), py::arg("seed"), py::arg("threads"));
   m.def("_albedo_table", &AlbedoTableFn, py::arg("model"), py::arg("params"), py::arg("axes"), py::arg("nodes"),
         py::arg("tolerance"), py::arg("accept_error"), py::arg("channel"), py::arg("part"), py::arg("threads"));
+  m.def("_albedo_preset", &AlbedoPreset, py::arg("name"), py::arg("size"), py::arg("tables"), py::arg("tolerance"),
+        py::arg("accept_error"), py::arg("threads"));
   m.def("_synth", &Synth, py::arg("model"), py::arg("params"), py::arg("instrument"), py::arg("seed"),
         py::arg("out"), py::arg("threads"));
   m.def("_fit", &Fit, py::arg("model"), py::arg("data"), py::arg("wo"), py::arg("f"), py::arg("sigma"),

@@ -36,6 +36,45 @@ def test_albedo_table_equals_cli():
     np.testing.assert_allclose(py["E"][10 + 1:], 1 - mu * np.log1p(1 / mu), atol=2e-5)
 
 
+def test_albedo_preset_equals_cli_in_the_renderers_layout():
+    py = brdfkit.albedo_preset("filament", size=4)
+    ref = cli_json("albedo", "--preset", "filament", "--size", 4, "--json")
+    dfg = py["tables"]["DFG_LUT"]
+    assert dfg["value"].shape == (4, 4, 3)  # row (roughness), texel (NoV), channel
+    np.testing.assert_array_equal(dfg["value"].ravel(), np.array(ref["tables"][0]["value"]))
+    assert py["max_error"] <= 1e-7
+    # Cycles' GGX average at roughness 1 (alpha 1): 4 (1 - ln 2) / 3.
+    c = brdfkit.albedo_preset("cycles", tables=["table_ggx_Eavg"])
+    assert list(c["tables"]) == ["table_ggx_Eavg"]
+    e = c["tables"]["table_ggx_Eavg"]["value"]
+    assert e.shape == (32,)
+    assert abs(e[31] - 4 * (1 - np.log(2)) / 3) < 1e-7
+    # Kulla-Conty: the two sides' Fresnel averages obey ior^2 (1 - F_in) = 1 - F_out.
+    k = brdfkit.albedo_preset("kulla_conty", size=4, tables=["kc_Favg", "kc_inv_Favg"])
+    z = k["tables"]["kc_Favg"]["axes"][0]["evaluated"]
+    ior = (1 + z * z) / (1 - z * z)
+    f_out, f_in = k["tables"]["kc_Favg"]["value"], k["tables"]["kc_inv_Favg"]["value"]
+    np.testing.assert_allclose(ior[1:] ** 2 * (1 - f_in[1:]), 1 - f_out[1:], rtol=0, atol=1e-12)
+    # F_avg outside against the classical closed form of the hemispherical Fresnel average.
+    n = ior[1:]
+    closed = (0.5 + (n - 1) * (3 * n + 1) / (6 * (n + 1) ** 2)
+              + n**2 * (n**2 - 1) ** 2 / (n**2 + 1) ** 3 * np.log((n - 1) / (n + 1))
+              - 2 * n**3 * (n**2 + 2 * n - 1) / ((n**2 + 1) * (n**4 - 1))
+              + 8 * n**4 * (n**4 + 1) / ((n**2 + 1) * (n**4 - 1) ** 2) * np.log(n))
+    np.testing.assert_allclose(f_out[1:], closed, rtol=0, atol=1e-9)
+
+
+def test_albedo_preset_refuses_bad_arguments():
+    with pytest.raises(ValueError, match="unknown table preset 'unreal'"):
+        brdfkit.albedo_preset("unreal")
+    with pytest.raises(ValueError, match="fixed sizes"):
+        brdfkit.albedo_preset("cycles", size=8)
+    with pytest.raises(ValueError, match="size 2 is outside"):
+        brdfkit.albedo_preset("kulla_conty", size=2)
+    with pytest.raises(ValueError, match="has no table 'table_ggx_F'"):
+        brdfkit.albedo_preset("cycles", tables=["table_ggx_F"])
+
+
 def test_synth_writes_what_the_cli_writes(tmp):
     py = brdfkit.synth("lambert+ggx", {"ggx.alpha": 0.2}, seed=7, out=[tmp / "py.csv"])
     cli("synth", "--model", "lambert+ggx", "--params", "ggx.alpha=0.2", "--seed", 7, "--out", tmp / "cli.csv", "-q")
