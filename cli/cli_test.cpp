@@ -406,6 +406,25 @@ TEST(Cli, ThreadCountsAreCappedWithANote) {
   EXPECT_FALSE(fs::exists(dir / "bad.csv"));
 }
 
+// A measured table is not reciprocal: its energy is the power reflected
+// from light along each direction. An RGL file written from GGX (alpha 0.3)
+// conserves energy however grazing the light (beyond its last incident slice,
+// 87.5 degrees, the slice holds), and at normal light it reflects GGX's
+// albedo to the reconstruction's accuracy.
+TEST(Cli, MeasuredTablesConserveEnergyForLightFromEveryDirection) {
+  const fs::path dir = FreshDir("measured-energy");
+  const std::string file = (dir / "ggx.bsdf").string();
+  ASSERT_EQ(Brdfkit("convert -m ggx -p alpha=0.3 " + file).code, 0);
+  const CliRun rgl = Brdfkit("check -m rgl:" + file + " --no-sampling --json");
+  const CliRun ggx = Brdfkit("check -m ggx -p alpha=0.3 --no-sampling --json");
+  const auto a = nlohmann::json::parse(rgl.out.substr(rgl.out.find('{')));
+  const auto b = nlohmann::json::parse(ggx.out.substr(ggx.out.find('{')));
+  EXPECT_LE(a["albedo_max"].get<double>(), 1.0) << rgl.out;
+  EXPECT_EQ(std::string(rgl.out).find("energy:"), std::string::npos) << rgl.out;
+  EXPECT_NEAR(a["albedo_at_normal"].get<double>(), b["albedo_at_normal"].get<double>(),
+              0.01 * b["albedo_at_normal"].get<double>());
+}
+
 // Scene messages: a misspelt top-level key is named as such (with the
 // nearest known key), and a relative path is shown as resolved.
 TEST(Cli, SceneMessagesNameTheKeyAndTheResolvedPath) {

@@ -58,10 +58,13 @@ AlbedoValue AlbedoAtMu(const Bxdf<double>& bxdf, const double* p, double mu, con
   mu = std::max(mu, GrazingMu(shape));
   mu = std::min(mu, 1.0);
   const Eigen::Vector3d wo(std::sqrt(std::max(0.0, (1 - mu) * (1 + mu))), 0, mu);
-  if (bxdf.Kind() & LobeKind::kTransmission) {
+  // The power scattered from light arriving along wo: over the sphere for a
+  // transmitting model, over the other argument for a non-reciprocal one.
+  const bool transmits = bxdf.Kind() & LobeKind::kTransmission;
+  if (transmits || !bxdf.Info().reciprocal) {
     IntegrateOptions io = o.Integrate(shape);
     // The total adds two estimates: each part gets half the tolerance.
-    if (o.part == AlbedoQuadratureOptions::Part::kTotal) io.abs_tolerance /= 2;
+    if (transmits && o.part == AlbedoQuadratureOptions::Part::kTotal) io.abs_tolerance /= 2;
     const ScatteredEstimate e = ScatteredPower(bxdf, p, wo, io);
     switch (o.part) {
       case AlbedoQuadratureOptions::Part::kReflected: return e.reflected;

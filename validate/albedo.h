@@ -52,7 +52,9 @@ struct AlbedoQuadratureOptions {
   // scattered from light arriving along wo (ScatteredPower): the reflected
   // part E_R, the transmitted part E_T, or their sum E_R + E_T (<= 1). The
   // inside of the interface is the outside of the model with 1 / eta, so an
-  // eta axis across 1 covers both sides. Other models ignore it (E).
+  // eta axis across 1 covers both sides. A non-reciprocal reflection model
+  // (a measured table, Phong's original) tabulates the power reflected from
+  // light along wo as well (E_R; E_T = 0). Other models ignore it (E).
   enum class Part { kTotal, kReflected, kTransmitted } part = Part::kTotal;
   // The same as options of the adaptive rule of validate/integrators.h.
   IntegrateOptions Integrate(const LobeShape& shape) const {

@@ -154,17 +154,19 @@ CheckResult CheckPlausibility(const Bxdf<double>& bxdf, const double* p, const C
   io.budget = o.albedo_budget;
   io.abs_tolerance = 1e-8;
   io.rel_tolerance = 1e-9;
-  // mu < 0: the direction below the surface (transmitting models). Their
-  // albedo is the power scattered over the sphere from light arriving
-  // along the direction (ScatteredPower); for a reciprocal reflection
-  // model that is E(wo).
+  // mu < 0: the direction below the surface (transmitting models). The
+  // albedo is the power scattered from light arriving along the direction
+  // (ScatteredPower): over the sphere for a transmitting model, over the
+  // hemisphere for a non-reciprocal one (a measured table, Phong's
+  // original); for a reciprocal reflection model that is E(wo).
+  const bool light_side = sphere || !bxdf.Info().reciprocal;
   struct Sample {
     double mu, phi, value, error;
     Array3d channels;
     bool tightened = false;  // integrated again with the larger budget
   };
   const auto directional = [&](double mu, double phi, const IntegrateOptions& opt) {
-    if (sphere) return ScatteredPower(bxdf, p, FromMu(mu, phi), opt).Total();
+    if (light_side) return ScatteredPower(bxdf, p, FromMu(mu, phi), opt).Total();
     return DirectionalAlbedo(bxdf, p, FromMu(mu, phi), Method::kAdaptive, opt);
   };
   const auto albedo = [&](double mu, double phi) {

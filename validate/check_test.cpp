@@ -60,16 +60,19 @@ class Broken final : public Bxdf<double> {
 };
 
 TEST(Check, PhongOriginalFailsReciprocityAndEnergy) {
-  // Albedo at normal view ks 2 pi / (n + 1) = pi for ks = 1, n = 1.
+  // f = ks cos^n(alpha) / cos(theta_i) is not reciprocal, so its energy is
+  // the power reflected from light along wi: int f cos(theta_o) dwo. At
+  // normal light, ks int cos^(n+1) = 2 pi ks / (n + 2); at grazing light the
+  // mirror direction lies on the horizon, int max(0, wo.x) wo.z dwo = 2/3,
+  // and the power is (2/3) ks / mu.
   const CheckResult r = Check("phong_original", "ks=1,n=1");
   EXPECT_FALSE(r.plausible);
   EXPECT_TRUE(HasReason(r, "reciprocity"));
   EXPECT_TRUE(HasReason(r, "energy"));
   EXPECT_GT(r.reciprocity_max_rel_error, 0.1);
-  EXPECT_GT(r.albedo_max, 3.0);
-  // f cos_i = ks cos^n(alpha): the largest albedo is at normal view, pi exactly.
-  EXPECT_NEAR(r.albedo_max, kPi, 1e-6);
-  EXPECT_NEAR(r.albedo_max_at_mu, 1.0, 1e-6);
+  EXPECT_NEAR(r.albedo_at_normal, 2 * kPi / 3, 1e-6);
+  EXPECT_NEAR(r.albedo_max_at_mu, 1e-7, 1e-12);
+  EXPECT_NEAR(r.albedo_max * 1e-7, 2.0 / 3.0, 1e-5);
 }
 
 TEST(Check, GgxBeckmannLambertArePlausible) {
@@ -264,8 +267,10 @@ TEST(Sweep, GridIncludesBoundsAndIsLogSpacedForLogParameters) {
   EXPECT_NEAR(alphas[1], std::sqrt(1e-7), 1e-12);
 }
 
-TEST(Sweep, FindsWhereBlinnPhongStyleLobesExceedOne) {
-  // phong_original: E(normal) = ks 2 pi / (n + 1) > 1 exactly where n + 1 < 2 pi ks.
+TEST(Sweep, EvaluatesEveryPointOfPhongsOriginalLobe) {
+  // phong_original: the power reflected from light at normal incidence is
+  // 2 pi ks / (n + 2), above 1 exactly where n + 2 < 2 pi ks; at grazing
+  // light it grows as 1 / mu for every n, so every point fails energy.
   const Model m = Model::Parse("phong_original");
   CheckOptions o;
   o.sampling = false;
@@ -276,7 +281,8 @@ TEST(Sweep, FindsWhereBlinnPhongStyleLobesExceedOne) {
   ASSERT_EQ(s.results.size(), 4u);
   for (std::size_t i = 0; i < 4; ++i) {
     const double n = s.points[i][3];
-    EXPECT_EQ(HasReason(s.results[i], "energy"), n + 1 < 2 * kPi) << "n = " << n;
+    EXPECT_NEAR(s.results[i].albedo_at_normal, 2 * kPi / (n + 2), 1e-6) << "n = " << n;
+    EXPECT_TRUE(HasReason(s.results[i], "energy")) << "n = " << n;
     EXPECT_TRUE(HasReason(s.results[i], "reciprocity"));
   }
 }
