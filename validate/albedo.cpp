@@ -62,7 +62,11 @@ AlbedoValue AlbedoAtMu(const Bxdf<double>& bxdf, const double* p, double mu, con
     IntegrateOptions io = o.Integrate(shape);
     // The total adds two estimates: each part gets half the tolerance.
     if (o.part == AlbedoQuadratureOptions::Part::kTotal) io.abs_tolerance /= 2;
-    const ScatteredEstimate e = ScatteredPower(bxdf, p, wo, io);
+    using Part = AlbedoQuadratureOptions::Part;
+    const ScatteredParts parts = o.part == Part::kReflected     ? ScatteredParts::kReflected
+                                 : o.part == Part::kTransmitted ? ScatteredParts::kTransmitted
+                                                                : ScatteredParts::kBoth;
+    const ScatteredEstimate e = ScatteredPower(bxdf, p, wo, io, parts);
     switch (o.part) {
       case AlbedoQuadratureOptions::Part::kReflected: return e.reflected;
       case AlbedoQuadratureOptions::Part::kTransmitted: return e.transmitted;

@@ -155,6 +155,29 @@ TEST(AlbedoTable, GlassEntriesSplitIntoReflectedAndTransmitted) {
     }
 }
 
+// Generalised reciprocity, f(wi, wo) / eta_wo^2 = f(wo, wi) / eta_wi^2: the
+// hemispherical transmittance from inside (relative index 1 / eta) is that
+// from outside divided by eta^2. Both averages computed independently, each
+// over its own side's lobe (the inside one through total internal reflection).
+TEST(AverageAlbedo, TransmittedAveragesOfTheTwoSidesDifferByEtaSquared) {
+  const Model m = Model::Parse("ggx_glass_correlated");
+  const auto b = m.Make<double>();
+  AlbedoQuadratureOptions o;
+  o.abs_tolerance = 1e-7;
+  o.part = AlbedoQuadratureOptions::Part::kTransmitted;
+  for (const auto& [alpha, eta] : {std::pair{0.16, 1.5}, std::pair{0.8, 2.125}}) {
+    SCOPED_TRACE("alpha " + std::to_string(alpha) + " eta " + std::to_string(eta));
+    const std::vector<double> out = ParseParams(m.Info(), "alpha=" + FormatDouble(alpha) + ",eta=" + FormatDouble(eta));
+    const std::vector<double> in =
+        ParseParams(m.Info(), "alpha=" + FormatDouble(alpha) + ",eta=" + FormatDouble(1 / eta));
+    LobeShape shape;
+    shape.width = alpha;
+    const AlbedoValue t_out = AverageAlbedo(*b, out.data(), shape, o), t_in = AverageAlbedo(*b, in.data(), shape, o);
+    EXPECT_GT(t_in.value[0], 0.1);  // not the trivial identity 0 = 0
+    EXPECT_NEAR(t_in.value[0], t_out.value[0] / (eta * eta), t_in.error[0] + t_out.error[0] / (eta * eta));
+  }
+}
+
 // A roughness axis (renderers' convention, alpha = roughness^2) holds the
 // same entries as the alpha axis spaced in sqrt(alpha) over the squared
 // range; roughness 0 is the smoothest alpha the model takes (1e-7 for GGX),

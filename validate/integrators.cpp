@@ -1131,7 +1131,7 @@ Estimate Sum(const Estimate& a, const Estimate& b) {
 Estimate ScatteredEstimate::Total() const { return Sum(reflected, transmitted); }
 
 ScatteredEstimate ScatteredPower(const Bxdf<double>& bxdf, const double* params, const Vector3d& w_in,
-                                 const IntegrateOptions& options) {
+                                 const IntegrateOptions& options, ScatteredParts parts) {
   if (!(w_in.norm() > 0) || !w_in.allFinite())
     throw std::invalid_argument("ScatteredPower: w must be a finite non-zero direction");
   const Vector3d w = w_in.normalized();
@@ -1149,10 +1149,12 @@ ScatteredEstimate ScatteredPower(const Bxdf<double>& bxdf, const double* params,
   // root. A kink of both the reflected and the refracted integrand.
   IntegrateOptions ko = options;
   if (k > 1) ko.facet_kinks.push_back(std::sqrt(1 - 1 / (k * k)));
-  IntegrateOptions ro = ko;
-  ro.shape.reset();  // the view's lobe facts, not the model's
-  out.reflected = DirectionalAlbedo(LightSideView(bxdf, below), params, w_up, Method::kAdaptive, ro);
-  if (!transmits) return out;
+  if (parts != ScatteredParts::kTransmitted) {
+    IntegrateOptions ro = ko;
+    ro.shape.reset();  // the view's lobe facts, not the model's
+    out.reflected = DirectionalAlbedo(LightSideView(bxdf, below), params, w_up, Method::kAdaptive, ro);
+  }
+  if (!transmits || parts == ScatteredParts::kReflected) return out;
   const LobeWidth lobe = bxdf.Width(params);
   // Near k = 1 the map m -> t collapses (every m refracts w straight on, the
   // Jacobian vanishes and f_r is a delta): the generic rule about the refracted peak takes over.
