@@ -721,8 +721,9 @@ AdaptiveResult AdaptiveHalfVector(const Bxdf<double>& bxdf, const double* p, con
         const double t = ts[k], st = std::sin(t), ct = std::cos(t);
         const Vector3d wm(st * ca, st * sa, ct);
         const double o_dot_m = sin_o * st * cp + mu_o * ct;
-        // wi.z from the double-angle form: no cancellation at grazing.
-        const double wi_z = mu_o * std::cos(2 * t) + sin_o * cp * std::sin(2 * t);
+        // wi.z from the double-angle form: no cancellation at grazing;
+        // cos(2t) = (cos t - sin t)(cos t + sin t), sin(2t) = 2 sin t cos t.
+        const double wi_z = mu_o * ((ct - st) * (ct + st)) + sin_o * cp * (2 * st * ct);
         if (!(wi_z > 0) || !(o_dot_m > 0)) continue;
         Vector3d wi = 2 * o_dot_m * wm - wo;
         wi.z() = wi_z;
