@@ -65,7 +65,11 @@ AlbedoValue AlbedoAtMu(const Bxdf<double>& bxdf, const double* p, double mu, con
     IntegrateOptions io = o.Integrate(shape);
     // The total adds two estimates: each part gets half the tolerance.
     if (transmits && o.part == AlbedoQuadratureOptions::Part::kTotal) io.abs_tolerance /= 2;
-    const ScatteredEstimate e = ScatteredPower(bxdf, p, wo, io);
+    using Part = AlbedoQuadratureOptions::Part;
+    const ScatteredParts parts = o.part == Part::kReflected     ? ScatteredParts::kReflected
+                                 : o.part == Part::kTransmitted ? ScatteredParts::kTransmitted
+                                                                : ScatteredParts::kBoth;
+    const ScatteredEstimate e = ScatteredPower(bxdf, p, wo, io, parts);
     switch (o.part) {
       case AlbedoQuadratureOptions::Part::kReflected: return e.reflected;
       case AlbedoQuadratureOptions::Part::kTransmitted: return e.transmitted;
@@ -85,6 +89,15 @@ double NodeTolerance(double tol, double mu) {
   constexpr double kM0 = 0.3, kB = 1.9, kC = 0.5 / (1 + kM0 * kM0 * kB / (2 - kB));
   return std::min(1e-3, kC * tol * (mu < kM0 ? std::pow(kM0 / mu, kB) : 1.0));
 }
+
+// mu = cos(theta) of the critical angle for light arriving from outside a
+// transmitting model whose inside is the less dense side (relative index
+// n_out / n_in = k > 1: sin(theta_c) = 1 / k); 0 when there is none.
+double CriticalMu(const Bxdf<double>& bxdf, const double* p) {
+  if (!(bxdf.Kind() & LobeKind::kTransmission)) return 0;
+  const double k = bxdf.RelativeIndex(p, Eigen::Vector3d::UnitZ(), -Eigen::Vector3d::UnitZ());
+  return k > 1 ? std::sqrt(1 - 1 / (k * k)) : 0.0;
+}
 }  // namespace
 
 AlbedoValue AverageAlbedo(const Bxdf<double>& bxdf, const double* p, const LobeShape& shape,
@@ -92,31 +105,54 @@ AlbedoValue AverageAlbedo(const Bxdf<double>& bxdf, const double* p, const LobeS
   AlbedoValue out;
   AlbedoQuadratureOptions io = o;
   io.max_evals = std::min<std::int64_t>(o.max_evals, 200000);
-  // In s = ln(mu) the integrand 2 mu^2 E(e^s) is smooth: the mu ln(mu)
-  // terms of E near grazing and the dip of width ~w at mu ~ w both become
+  // In s = ln(mu) the integrand 2 mu^2 E(e^s) is smooth at grazing: the
+  // mu ln(mu) terms of E there and the dip of width ~w at mu ~ w both become
   // features of unit scale. Below mu_min = 1e-4 w, E is at its grazing limit
-  // and int_0^mu_min 2 mu E dmu = mu_min^2 E(mu_min).
+  // and int_0^mu_min 2 mu E dmu = mu_min^2 E(mu_min). Towards normal
+  // incidence E has terms in (1 - mu)^(3/2) ~ theta^3 (rough glass), an end
+  // point singularity in s; the rule runs in v = sqrt(-s) (v ~ theta / sqrt(2)
+  // there), where they are smooth: int_s0^0 h(s) ds = int_0^v0 h(-v^2) 2 v dv.
   const double mu_min = std::max(1e-4 * std::min(shape.width, 1.0), 1e-12);
   // E at mu is needed to NodeTolerance(tol, mu): its error enters with
   // weight 2 mu dmu, so the sum is at most tol / 2; worst = max of
   // error / tol_E over the nodes scales that bound (a node may miss or beat
   // its target).
   double worst = 0;
-  const auto g = [&](double s) -> Eigen::Array3d {
-    const double mu = std::exp(s);
+  const auto g = [&](double v) -> Eigen::Array3d {
+    const double mu = std::exp(-v * v);
     AlbedoQuadratureOptions is = io;
     is.abs_tolerance = NodeTolerance(o.abs_tolerance, mu);
     const AlbedoValue e = AlbedoAtMu(bxdf, p, mu, shape, is);
     out.evals += e.evals;
     worst = std::max(worst, e.error.maxCoeff() / is.abs_tolerance);
-    return 2 * mu * mu * e.value;
+    return 2 * mu * mu * e.value * (2 * v);
   };
-  const double s0 = std::log(mu_min), sw = std::log(std::min(shape.width, 1.0));
+  const auto v_of = [](double s) { return std::sqrt(-s); };
+  const double v0 = v_of(std::log(mu_min)), sw = std::log(std::min(shape.width, 1.0));
   // Panels: below, across and above the lobe-width dip.
-  const std::vector<double> breaks{sw - 2, sw + 2};
+  std::vector<double> breaks;
+  for (double b : {sw - 2, sw + 2})
+    if (b < 0) breaks.push_back(v_of(b));
   double err = 0;
   std::int64_t n = 0;
-  out.value = AdaptiveGaussKronrod(g, s0, 0, breaks, 0.5 * o.abs_tolerance, o.max_subdivisions, &err, &n);
+  const double mu_c = CriticalMu(bxdf, p);
+  if (mu_c > mu_min && mu_c < 1) {
+    // Light from the denser side: E falls (reflected) or rises (transmitted)
+    // across the critical angle theta_c over an angle ~w, a transition the
+    // adaptive rule resolves with fewer nodes in u, v = v_c + c sinh(u):
+    // uniform in v over the transition, geometric away from it. c is w in
+    // v, dv / dtheta = tan(theta) / (2 v) (1 / sqrt(2) as theta -> 0).
+    const double v_c = v_of(std::log(mu_c)), tan_c = std::sqrt((1 - mu_c) * (1 + mu_c)) / mu_c;
+    const double c = std::min(shape.width, 1.0) * tan_c / (2 * v_c);
+    const auto u_of = [&](double v) { return std::asinh((v - v_c) / c); };
+    const auto gu = [&](double u) -> Eigen::Array3d { return g(v_c + c * std::sinh(u)) * (c * std::cosh(u)); };
+    std::vector<double> u_breaks{0.0};
+    for (double b : breaks) u_breaks.push_back(u_of(b));
+    out.value = AdaptiveGaussKronrod(gu, u_of(0.0), u_of(v0), u_breaks, 0.5 * o.abs_tolerance, o.max_subdivisions,
+                                     &err, &n);
+  } else {
+    out.value = AdaptiveGaussKronrod(g, 0.0, v0, breaks, 0.5 * o.abs_tolerance, o.max_subdivisions, &err, &n);
+  }
   AlbedoQuadratureOptions mo = io;
   mo.abs_tolerance = NodeTolerance(o.abs_tolerance, mu_min);
   const AlbedoValue e_min = AlbedoAtMu(bxdf, p, mu_min, shape, mo);

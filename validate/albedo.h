@@ -75,8 +75,9 @@ using AlbedoValue = Estimate;
 AlbedoValue AlbedoAtMu(const Bxdf<double>& bxdf, const double* params, double mu, const LobeShape& shape,
                        const AlbedoQuadratureOptions& options = {});
 
-// E_avg = 2 int_0^1 E(mu) mu dmu by adaptive Gauss-Kronrod in mu, with its own
-// evaluations of E (not the table's nodes).
+// E_avg = 2 int_0^1 E(mu) mu dmu by adaptive Gauss-Kronrod in v = sqrt(ln(1 / mu))
+// (stretched about the critical angle of a transmitting model seen from its
+// denser side), with its own evaluations of E (not the table's nodes).
 AlbedoValue AverageAlbedo(const Bxdf<double>& bxdf, const double* params, const LobeShape& shape,
                           const AlbedoQuadratureOptions& options = {});
 

@@ -721,8 +721,9 @@ AdaptiveResult AdaptiveHalfVector(const Bxdf<double>& bxdf, const double* p, con
         const double t = ts[k], st = std::sin(t), ct = std::cos(t);
         const Vector3d wm(st * ca, st * sa, ct);
         const double o_dot_m = sin_o * st * cp + mu_o * ct;
-        // wi.z from the double-angle form: no cancellation at grazing.
-        const double wi_z = mu_o * std::cos(2 * t) + sin_o * cp * std::sin(2 * t);
+        // wi.z from the double-angle form: no cancellation at grazing;
+        // cos(2t) = (cos t - sin t)(cos t + sin t), sin(2t) = 2 sin t cos t.
+        const double wi_z = mu_o * ((ct - st) * (ct + st)) + sin_o * cp * (2 * st * ct);
         if (!(wi_z > 0) || !(o_dot_m > 0)) continue;
         Vector3d wi = 2 * o_dot_m * wm - wo;
         wi.z() = wi_z;
@@ -1131,7 +1132,7 @@ Estimate Sum(const Estimate& a, const Estimate& b) {
 Estimate ScatteredEstimate::Total() const { return Sum(reflected, transmitted); }
 
 ScatteredEstimate ScatteredPower(const Bxdf<double>& bxdf, const double* params, const Vector3d& w_in,
-                                 const IntegrateOptions& options) {
+                                 const IntegrateOptions& options, ScatteredParts parts) {
   if (!(w_in.norm() > 0) || !w_in.allFinite())
     throw std::invalid_argument("ScatteredPower: w must be a finite non-zero direction");
   const Vector3d w = w_in.normalized();
@@ -1149,10 +1150,12 @@ ScatteredEstimate ScatteredPower(const Bxdf<double>& bxdf, const double* params,
   // root. A kink of both the reflected and the refracted integrand.
   IntegrateOptions ko = options;
   if (k > 1) ko.facet_kinks.push_back(std::sqrt(1 - 1 / (k * k)));
-  IntegrateOptions ro = ko;
-  ro.shape.reset();  // the view's lobe facts, not the model's
-  out.reflected = DirectionalAlbedo(LightSideView(bxdf, below), params, w_up, Method::kAdaptive, ro);
-  if (!transmits) return out;
+  if (parts != ScatteredParts::kTransmitted) {
+    IntegrateOptions ro = ko;
+    ro.shape.reset();  // the view's lobe facts, not the model's
+    out.reflected = DirectionalAlbedo(LightSideView(bxdf, below), params, w_up, Method::kAdaptive, ro);
+  }
+  if (!transmits || parts == ScatteredParts::kReflected) return out;
   const LobeWidth lobe = bxdf.Width(params);
   // Near k = 1 the map m -> t collapses (every m refracts w straight on, the
   // Jacobian vanishes and f_r is a delta): the generic rule about the refracted peak takes over.

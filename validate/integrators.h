@@ -113,11 +113,13 @@ Estimate IntegrateHemisphere(const std::function<Eigen::Array3d(const Eigen::Vec
 // Energy conservation is reflected + transmitted <= 1 for every w. For a
 // model that does not transmit, transmitted is 0 and reflected is E(w) when
 // it is reciprocal.
+// `parts` selects what is computed; a part left out is a zero estimate.
 struct ScatteredEstimate {
   Estimate reflected, transmitted;
   Estimate Total() const;
 };
+enum class ScatteredParts { kBoth, kReflected, kTransmitted };
 ScatteredEstimate ScatteredPower(const Bxdf<double>& bxdf, const double* params, const Eigen::Vector3d& w,
-                                 const IntegrateOptions& options = {});
+                                 const IntegrateOptions& options = {}, ScatteredParts parts = ScatteredParts::kBoth);
 
 }  // namespace brdfkit::validate

@@ -29,7 +29,8 @@ Eigen::Vector3d View(double mu) { return Eigen::Vector3d(std::sqrt(std::max(0.0,
 // Fresnel fraction and refracted in the rest, from outside and from inside
 // (all reflected past the critical angle, 0.7297 rad for eta = 1.5; nearer
 // to it the roughness averages F over a steep slope and the split departs
-// from the smooth one: 0.1194 against 0.1141 at mu = -0.8).
+// from the smooth one: 0.1194 against 0.1141 at mu = -0.8). Either part
+// computed alone is the same as in the pair.
 TEST(ScatteredPower, NearlySmoothGlassSplitsByFresnel) {
   const Model m = Model::Parse("ggx_glass");
   const std::vector<double> p = ParseParams(m.Info(), "alpha=0.01,eta=1.5");
@@ -45,6 +46,15 @@ TEST(ScatteredPower, NearlySmoothGlassSplitsByFresnel) {
     EXPECT_NEAR(e.transmitted.value[0], 1 - f, 1e-3 + e.transmitted.error[0]);
     EXPECT_LE(e.Total().value[0], 1.0 + e.Total().error[0]);
     EXPECT_GT(e.Total().value[0], 0.999);  // the Smith terms lose little at alpha = 0.01
+    // Either part alone is the same estimate, the other one zero.
+    const ScatteredEstimate r = ScatteredPower(*b, p.data(), View(mu), o, ScatteredParts::kReflected);
+    const ScatteredEstimate t = ScatteredPower(*b, p.data(), View(mu), o, ScatteredParts::kTransmitted);
+    EXPECT_EQ(r.reflected.value[0], e.reflected.value[0]);
+    EXPECT_EQ(r.reflected.error[0], e.reflected.error[0]);
+    EXPECT_EQ(r.transmitted.evals, 0);
+    EXPECT_EQ(t.transmitted.value[0], e.transmitted.value[0]);
+    EXPECT_EQ(t.transmitted.error[0], e.transmitted.error[0]);
+    EXPECT_EQ(t.reflected.evals, 0);
   }
 }
 

@@ -303,35 +303,6 @@ TEST(KullaContyPreset, TransmittedShareIsTheRatioOfTheLossesOfBothSides) {
   }
 }
 
-// The generalised reciprocity of the rough glass BSDF, f(wi, wo) / eta_o^2 =
-// f(wo, wi) / eta_i^2, makes the hemispherical transmittances of the two
-// sides differ by eta^2: E_T,avg(eta) = eta^2 E_T,avg(1 / eta). The two
-// averages come from different rules (light refracted into the denser side,
-// and out of it past total internal reflection).
-TEST(KullaContyPreset, TransmittancesOfTheTwoSidesDifferByEtaSquared) {
-  for (const auto& [alpha, eta] : std::vector<std::pair<double, double>>{{0.25, 1.5}, {0.6, 2.2}}) {
-    const Model m = Model::Parse("ggx_glass_correlated");
-    const auto bxdf = m.Make<double>();
-    std::vector<double> po = m.Info().Defaults(), pi = po;
-    for (std::size_t i = 0; i < m.Info().params.size(); ++i) {
-      if (m.Info().params[i].name == "alpha") po[m.Info().Offset(i)] = pi[m.Info().Offset(i)] = alpha;
-      if (m.Info().params[i].name == "eta") {
-        po[m.Info().Offset(i)] = eta;
-        pi[m.Info().Offset(i)] = 1 / eta;
-      }
-    }
-    AlbedoQuadratureOptions q;
-    q.abs_tolerance = 1e-7;
-    q.max_evals = 4000000;
-    q.part = AlbedoQuadratureOptions::Part::kTransmitted;
-    LobeShape shape;
-    shape.width = alpha;
-    const AlbedoValue to = AverageAlbedo(*bxdf, po.data(), shape, q), ti = AverageAlbedo(*bxdf, pi.data(), shape, q);
-    EXPECT_NEAR(to.value[0], eta * eta * ti.value[0], to.error[0] + eta * eta * ti.error[0] + 1e-12)
-        << "alpha " << alpha << ", eta " << eta;
-  }
-}
-
 TEST(Presets, HalfBitsRoundToNearestEven) {
   EXPECT_EQ(HalfBits(1.0), 0x3c00);
   EXPECT_EQ(HalfBits(0.5), 0x3800);
