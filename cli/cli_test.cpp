@@ -315,18 +315,15 @@ TEST(Cli, PresetHeadersCompileAndHoldTheJsonValues) {
   const CliRun both = Brdfkit("albedo --preset cycles --model ggx");
   EXPECT_EQ(both.code, 2) << both.out;
   EXPECT_NE(both.out.find("--preset excludes --model"), std::string::npos) << both.out;
-  const CliRun small = Brdfkit("albedo --preset filament --size 1");
-  EXPECT_NE(small.code, 0) << small.out;
-  EXPECT_NE(small.out.find("--size"), std::string::npos) << small.out;
-  const CliRun fixed = Brdfkit("albedo --preset cycles --size 8");
-  EXPECT_NE(fixed.code, 0) << fixed.out;
-  EXPECT_NE(fixed.out.find("preset 'cycles' has Cycles' fixed sizes"), std::string::npos) << fixed.out;
-  const CliRun kc = Brdfkit("albedo --preset kulla_conty --size 2");
-  EXPECT_NE(kc.code, 0) << kc.out;
-  EXPECT_NE(kc.out.find("preset 'kulla_conty': size 2 is outside [3, 256]"), std::string::npos) << kc.out;
-  const CliRun table = Brdfkit("albedo --preset cycles --tables table_ggx_F");
-  EXPECT_NE(table.code, 0);
-  EXPECT_NE(table.out.find("table_ggx_F"), std::string::npos) << table.out;
+  for (const auto& [args, says] : std::vector<std::pair<std::string, std::string>>{
+           {"--preset filament --size 1", "--size"},
+           {"--preset cycles --size 8", "preset 'cycles' has Cycles' fixed sizes"},
+           {"--preset kulla_conty --size 2", "preset 'kulla_conty': size 2 is outside [3, 256]"},
+           {"--preset cycles --tables table_ggx_F", "table_ggx_F"}}) {
+    const CliRun bad = Brdfkit("albedo " + args);
+    EXPECT_NE(bad.code, 0) << args << ": " << bad.out;
+    EXPECT_NE(bad.out.find(says), std::string::npos) << args << ": " << bad.out;
+  }
 }
 
 // A table that misses its 1e-6 contract (alpha down to 1e-7 at grazing) is

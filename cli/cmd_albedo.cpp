@@ -63,8 +63,8 @@ void RegisterAlbedo(CLI::App& app) {
                   "instead of --model and --axes: every table a renderer ships, on its nodes and in its layout: "
                   "cycles (Blender Cycles' shader.tables: GGX, glass and generalised-Schlick tables), filament "
                   "(Filament's DFG texture), kulla_conty (Kulla & Conty's rough-glass compensation: E and E_avg "
-                  "from both sides, F_avg, the transmitted share x); default tolerance 1e-7. --header writes the renderer's arrays (a path "
-                  "ending in .inc: the bare array, as Filament's build includes it)")
+                  "from both sides, F_avg, the transmitted share x); default tolerance 1e-7. --header writes the "
+                  "renderer's arrays (a path ending in .inc: the bare array, as Filament's build includes it)")
       ->check(CLI::IsMember(validate::PresetNames()));
   cmd->add_option("--size", preset_size,
                   "nodes per axis of --preset filament (texels per side; Filament: 128, 64 on mobile) or "

@@ -329,9 +329,11 @@ void AlbedoTask::Parse(SceneReader& r, const Scene& /*scene*/) {
     if (!kAlbedoFormats.count(f)) r.FailKey("formats", "unknown format '" + f + "' (expected csv, exr, header)");
   if (r.Has("preset")) {
     t.preset = r.String("preset");
-    const std::vector<std::string> presets = validate::PresetNames();
-    if (std::find(presets.begin(), presets.end(), t.preset) == presets.end())
-      r.FailKey("preset", "unknown table preset '" + t.preset + "' (expected cycles, filament or kulla_conty)");
+    try {
+      validate::PresetSize(t.preset, 0);  // the name: known presets are listed otherwise
+    } catch (const ModelError& e) {
+      r.FailKey("preset", e.what());
+    }
     for (const char* key : {"model", "params", "axes", "nodes", "part"})
       if (r.Has(key)) r.FailKey(key, "a preset has its own models and axes: give \"preset\" or \"model\", not both");
     const std::vector<std::string> names = validate::PresetTableNames(t.preset);

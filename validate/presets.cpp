@@ -417,18 +417,18 @@ void AddKullaConty(std::vector<PresetTable>& tables, std::vector<Job>& jobs, std
                        const std::size_t nr = rough.coordinate.size();
                        for (std::size_t z = 0; z < zior.coordinate.size(); ++z) {
                          const double ior = IorOfZ(zior.evaluated[z]);
+                         if (MatchedIndex(ior)) {
+                           // No interface: both sides alike, and t -> 1 as ior -> 1.
+                           std::fill_n(t[xt].value.begin() + z * nr, nr, 0.5);
+                           continue;
+                         }
+                         const double to = 1 - t[f_out].value[z], ti = 1 - t[f_in].value[z];
+                         const double eto = t[f_out].error[z], eti = t[f_in].error[z];
                          for (std::size_t r = 0; r < nr; ++r) {
+                           if (SmoothRoughness(rough.evaluated[r])) continue;  // filled below from the next node
                            const std::size_t k = z * nr + r;
                            const double lo = 1 - t[avg_out].value[k], li = 1 - t[avg_in].value[k];
                            const double eo = t[avg_out].error[k], ei = t[avg_in].error[k];
-                           const double to = 1 - t[f_out].value[z], ti = 1 - t[f_in].value[z];
-                           const double eto = t[f_out].error[z], eti = t[f_in].error[z];
-                           if (MatchedIndex(ior)) {
-                             // No interface: both sides alike, and t -> 1 as ior -> 1.
-                             t[xt].value[k] = 0.5;
-                             continue;
-                           }
-                           if (SmoothRoughness(rough.evaluated[r])) continue;  // filled below from the next node
                            // x at the ends of every factor's interval: its range bounds the error.
                            const auto x_of = [&](double a, double b, double c, double d) {
                              const double tt = ior * ior * a * b / (c * d);
@@ -449,7 +449,7 @@ void AddKullaConty(std::vector<PresetTable>& tables, std::vector<Job>& jobs, std
                          // Roughness 0 loses nothing and x has no value there: the entry
                          // repeats the next node's, so that interpolation between them is flat.
                          for (std::size_t r = 0; r + 1 < nr; ++r)
-                           if (SmoothRoughness(rough.evaluated[r]) && !MatchedIndex(ior)) {
+                           if (SmoothRoughness(rough.evaluated[r])) {
                              std::size_t s = r + 1;
                              while (s + 1 < nr && SmoothRoughness(rough.evaluated[s])) ++s;
                              t[xt].value[z * nr + r] = t[xt].value[z * nr + s];
@@ -525,7 +525,9 @@ int PresetSize(const std::string& name, int size) {
   }
   if (name == "filament") return sized(128, 2, 4096);
   if (name == "kulla_conty") return sized(16, 3, 256);
-  throw ModelError("unknown table preset '" + name + "' (presets: cycles, filament, kulla_conty)");
+  std::string names;
+  for (const std::string& n : PresetNames()) names += (names.empty() ? "" : ", ") + n;
+  throw ModelError("unknown table preset '" + name + "' (presets: " + names + ")");
 }
 
 std::vector<std::string> PresetTableNames(const std::string& name) {
@@ -612,8 +614,8 @@ std::string DescribePresetMisses(const Preset& p, double tolerance, std::size_t 
   };
   std::vector<Miss> misses;
   for (const PresetTable& t : p.tables)
-    for (std::size_t k = 0; k < t.error.size() && !t.derived; ++k)
-      if (!(t.error[k] <= tolerance)) {
+    for (std::size_t k = 0; k < t.error.size(); ++k)
+      if (!t.derived && !(t.error[k] <= tolerance)) {
         const std::size_t node = k / t.channels.size();
         std::string at;
         std::size_t rest = node;

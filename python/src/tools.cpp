@@ -89,7 +89,6 @@ py::dict AlbedoPreset(const std::string& name, int size, const std::vector<std::
   o.size = size;
   o.tables = tables;
   o.abs_tolerance = tolerance;
-  validate::PresetSize(name, size);  // an unknown name or a size the preset does not take, before any work
   validate::Preset p;
   RunReleased(threads, [&](const CancelToken& token) {
     o.progress = [&token](std::size_t, std::size_t) { token.ThrowIfCancelled(); };
