@@ -158,8 +158,8 @@ ceres::Solver::Summary SolveStart(const FitState& s, const Engine& e, const Prep
 // Level(mask) fits the sum with the lobes in `mask` switched off.
 class StartSearch {
  public:
-  StartSearch(const Model& model, const FitState& s, const Prepared& subset)
-      : model_(model), s_(s), o_(s.o), base_(s.layout), full_(s.full), subset_(subset) {
+  StartSearch(const Model& model, const FitState& s, const Prepared& subset, const Prepared* middle)
+      : model_(model), s_(s), o_(s.o), base_(s.layout), full_(s.full), subset_(subset), middle_(middle) {
     plain_options_ = o_;
     for (const ParamInfo& p : model.Info().params)
       for (int c = 0; c < (p.colour ? 3 : 1); ++c) channel_.push_back(p.colour ? c : -1);
@@ -253,7 +253,7 @@ class StartSearch {
       for (const Candidate& c : optima) s_.res.local_optima.push_back({c.cost, c.p, c.origin});
       best = optima.front();
     } else {
-      best = Solve(plain, full_, optima.front().p, o_.max_iterations, o_.function_tolerance,
+      best = Solve(plain, full_, Nearer(plain, optima.front(), name), o_.max_iterations, o_.function_tolerance,
                    name + ": refine (all samples)");
       if (!(best.cost <= optima.front().cost)) best = optima.front();
     }
@@ -373,6 +373,31 @@ class StartSearch {
     return out;
   }
 
+  // Coarse to fine: on large tables p is first refined on the middle-sized
+  // subset, so that the solve on all samples (whose iterations cost the
+  // most) starts near its optimum and needs few.
+  // A sub-sum's optimum was refined on all samples already.
+  std::vector<double> Nearer(const Engine& e, const Candidate& p, const std::string& name) {
+    if (!middle_ || p.origin.rfind("nested ", 0) == 0) return p.p;
+    const Candidate c = Solve(e, *middle_, p.p, o_.max_iterations, 1e-10,
+                              name + ": refine (" + std::to_string(middle_->size()) + " samples)");
+    return std::isfinite(c.cost) ? c.p : p.p;
+  }
+
+ public:
+  // The start of the final solve from the best local optimum `best`: a
+  // subset's optimum refined as above, unless that costs more on all
+  // samples than the optimum found there (a sub-sum's, already refined on
+  // all samples), so that the final solve starts no higher.
+  Candidate FinalStart(const Candidate& best) {
+    if (!middle_ || best.origin.rfind("nested ", 0) == 0) return best;
+    const Engine plain(evaluators_, plain_options_, 1.0, base_);
+    Candidate c{Nearer(plain, best, ActiveSpec(0)), 0, best.origin};
+    c.cost = FullCost(plain, c.p);
+    return c.cost <= best.cost ? c : best;
+  }
+
+ private:
   // Cost (half the sum of squared residuals) of p on all samples.
   double FullCost(const Engine& e, const std::vector<double>& p) const {
     const std::vector<double> u = e.ToInternal(p);
@@ -414,6 +439,7 @@ class StartSearch {
   const Layout& base_;
   const Prepared& full_;
   const Prepared& subset_;
+  const Prepared* middle_;  // the middle-sized subset on large tables, else null
   std::vector<bool> untouched_;
   std::vector<int> channel_;  // packed slot -> channel of a colour parameter, else -1
   std::map<unsigned, Candidate> memo_;
@@ -445,12 +471,14 @@ std::vector<std::size_t> SubsetIndex(const FitState& s, std::size_t count) {
 // (StartSearch); the best of these local optima is kept.
 std::vector<double> SearchSum(const FitState& s, const Model& sum) {
   const Prepared subset = Prepare(s.data, SubsetIndex(s, s.o.start_subset), s.o);
-  StartSearch search(sum, s, subset);
+  const bool large = s.full.size() > 64 * s.o.start_subset;
+  const Prepared middle = large ? Prepare(s.data, SubsetIndex(s, 16 * s.o.start_subset), s.o) : Prepared{};
+  StartSearch search(sum, s, subset, large ? &middle : nullptr);
   const Candidate best = search.Level(0, true);
   if (!std::isfinite(best.cost)) NoFiniteStart(s);
   for (std::size_t q = 0; q < s.res.local_optima.size(); ++q)
     if (s.res.local_optima[q].params == best.p) s.res.kept = int(q);
-  std::vector<double> u = s.plain.ToInternal(best.p);
+  std::vector<double> u = s.plain.ToInternal(search.FinalStart(best).p);
   ClampToBounds(s.plain, u);
   return u;
 }
