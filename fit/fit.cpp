@@ -7,6 +7,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <optional>
 #include <stdexcept>
 #include <string>
 
@@ -141,12 +142,19 @@ Result FitInArena(const Evaluators& model, const Dataset& data, const Options& o
   const FitState s{model, data, o, sel, full, layout, plain, data.has_sigma && o.use_sigma,
                    std::max<std::size_t>(1, o.chunk), elapsed, res};
 
-  std::vector<double> u = StartingPoint(s);
+  const Start start = StartingPoint(s);
+  std::vector<double> u = start.u;
   const double loss_scale = LossScale(s, u);
   res.loss_scale = o.loss != Loss::kNone ? loss_scale : 0.0;
   const Engine engine(model, o, loss_scale, layout);
   res.init_seconds = elapsed();
   FinalSolve(s, engine, u);
+  if (start.after_final)
+    if (std::optional<std::vector<double>> again = start.after_final(res.params)) {
+      u = *again;
+      res.init_seconds = elapsed();
+      FinalSolve(s, engine, u);
+    }
   const double residual_variance = ResidualVariance(s);
   Summarise(s, engine, u, residual_variance);
   Uncertainty(s, engine, u, residual_variance);

