@@ -530,17 +530,22 @@ TEST(Fit, EveryLobeOfASumSwitchesOff) {
   }
 }
 
-// Data from a material outside the fitted families (Oren-Nayar diffuse, a
-// Beckmann lobe and a wide GGX haze, noisy): every sum fits at least as
-// well as each of its nested sub-sums, on the full cost.
-TEST(Fit, SumIsNeverWorseThanItsNestedSubSums) {
+// n noisy samples of a material outside the fitted families: Oren-Nayar
+// diffuse, a Beckmann lobe and a wide GGX haze.
+Dataset OutsideMaterial(int n, std::uint64_t seed) {
   const Model truth_model = Model::Parse("oren_nayar+beckmann+ggx");
   const std::vector<double> truth = ParseParams(
       truth_model.Info(),
       "oren_nayar.albedo=0.3:0.25:0.2,oren_nayar.sigma=0.4,beckmann.alpha=0.07,beckmann.f0=0.04,ggx.alpha=0.35,"
       "ggx.f0=0.04,ggx.weight=0.25");
-  Dataset d = Synthesise(truth_model, truth, 800, 31, 0.02, 1e-4);
+  Dataset d = Synthesise(truth_model, truth, n, seed, 0.02, 1e-4);
   d.has_sigma = false;
+  return d;
+}
+
+// Every sum fits at least as well as each of its nested sub-sums, on the full cost.
+TEST(Fit, SumIsNeverWorseThanItsNestedSubSums) {
+  const Dataset d = OutsideMaterial(800, 31);
   for (Metric metric : {Metric::kCbrt, Metric::kL2}) {
     SCOPED_TRACE(MetricName(metric));
     Options o;
@@ -579,13 +584,7 @@ TEST(Fit, SumIsNeverWorseThanItsNestedSubSums) {
 // the middle subset, solved on all samples only when within reach of the
 // sum after its final solve): never worse than the sub-sums fitted alone.
 TEST(Fit, SumIsNeverWorseThanItsNestedSubSumsOnLargeTables) {
-  const Model truth_model = Model::Parse("oren_nayar+beckmann+ggx");
-  const std::vector<double> truth = ParseParams(
-      truth_model.Info(),
-      "oren_nayar.albedo=0.3:0.25:0.2,oren_nayar.sigma=0.4,beckmann.alpha=0.07,beckmann.f0=0.04,ggx.alpha=0.35,"
-      "ggx.f0=0.04,ggx.weight=0.25");
-  Dataset d = Synthesise(truth_model, truth, 6000, 37, 0.02, 1e-4);
-  d.has_sigma = false;
+  const Dataset d = OutsideMaterial(6000, 37);
   for (Metric metric : {Metric::kCbrt, Metric::kL2}) {
     SCOPED_TRACE(MetricName(metric));
     Options o;
