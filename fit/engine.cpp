@@ -137,6 +137,15 @@ Eigen::Array3d Engine::Predict(const std::vector<double>& p, const Prepared& d, 
   return Prediction(*b_, p.data(), d, q);
 }
 
+void Engine::PredictRange(const std::vector<double>& p, const Prepared& d, std::size_t begin, std::size_t end,
+                          double* out) const {
+  if (quad_ || ladder_) {
+    for (std::size_t q = begin; q < end; ++q) Eigen::Map<Eigen::Array3d>(out + 3 * (q - begin)) = Predict(p, d, q);
+  } else if (end > begin) {
+    b_->EvalBatch(p.data(), d.wi[begin].data(), 3, d.wo[begin].data(), 3, end - begin, out);
+  }
+}
+
 bool Engine::EvalDouble(const double* u, const Prepared& d, std::size_t begin, std::size_t end, bool fit,
                         double* r) const {
   std::vector<double> p(n_);

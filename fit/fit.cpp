@@ -43,12 +43,15 @@ Options WithoutLoss(const Options& o) {
 
 // The final solve on all samples from internal parameters u (updated in
 // place): the solution, its cost and the solver's report.
-void FinalSolve(const FitState& s, const Engine& engine, std::vector<double>& u) {
+// The normal matrix of Ceres' last Jacobian (at the point before its last
+// step, or at the solution).
+std::optional<NormalCache::Normal> FinalSolve(const FitState& s, const Engine& engine, std::vector<double>& u) {
   Result& res = s.res;
   const Options& o = s.o;
   ceres::Problem::Options po;
   ceres::Problem problem(po);
-  BuildProblem(problem, engine, s.full, s.chunk, u);
+  NormalCache cache;
+  BuildProblem(problem, engine, s.full, s.chunk, u, &cache);
   ceres::Solver::Options so = SolverOptions(o, o.solver, o.max_iterations);
   const std::size_t m = 3 * s.full.size();
   const bool weights_are_metric = !s.sigma && o.loss == Loss::kNone;
@@ -78,6 +81,7 @@ void FinalSolve(const FitState& s, const Engine& engine, std::vector<double>& u)
   if (summary.termination_type == ceres::FAILURE)
     res.message = "the solver failed: " + summary.message;
   res.residuals = m;
+  return cache.Last();
 }
 
 // Residual variance: chi^2 / dof with sigma weights; otherwise the scale
@@ -148,16 +152,16 @@ Result FitInArena(const Evaluators& model, const Dataset& data, const Options& o
   res.loss_scale = o.loss != Loss::kNone ? loss_scale : 0.0;
   const Engine engine(model, o, loss_scale, layout);
   res.init_seconds = elapsed();
-  FinalSolve(s, engine, u);
+  std::optional<NormalCache::Normal> jtj = FinalSolve(s, engine, u);
   if (start.after_final)
     if (std::optional<std::vector<double>> again = start.after_final(res.params)) {
       u = *again;
       res.init_seconds = elapsed();
-      FinalSolve(s, engine, u);
+      jtj = FinalSolve(s, engine, u);
     }
   const double residual_variance = ResidualVariance(s);
   Summarise(s, engine, u, residual_variance);
-  Uncertainty(s, engine, u, residual_variance);
+  Uncertainty(s, engine, u, residual_variance, jtj);
   res.seconds = elapsed();
   return res;
 }

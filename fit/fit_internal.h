@@ -178,6 +178,9 @@ class Engine {
   // The model's value for sample q at user parameters p: f_r, or f_r
   // through the instrument's apertures.
   Eigen::Array3d Predict(const std::vector<double>& p, const Prepared& d, std::size_t q) const;
+  // The model's values (user parameters p) of samples [begin, end) into out[3 (q - begin) + c].
+  void PredictRange(const std::vector<double>& p, const Prepared& d, std::size_t begin, std::size_t end,
+                    double* out) const;
 
   // Residuals (3 per sample) over [begin, end), internal parameters u. fit:
   // fit weights and robust loss; else the plain metric.
@@ -285,9 +288,25 @@ class TraceCallback final : public ceres::IterationCallback {
   std::function<void(const ceres::IterationSummary&)> f_;
 };
 
-// Builds the problem over `d` with internal parameters `u` (updated in place).
+// J^T J of each residual block where its Jacobian was last evaluated, and
+// the parameters it was evaluated at (filled by the solver's threads, each
+// block its own slot).
+struct NormalCache {
+  std::vector<Eigen::MatrixXd> jtj;
+  std::vector<std::vector<double>> at;
+  // J^T J of the whole problem at the point where it was last evaluated.
+  struct Normal {
+    Eigen::MatrixXd jtj;
+    std::vector<double> at;
+  };
+  // The sum over blocks, when every block was last evaluated at one point.
+  std::optional<Normal> Last() const;
+};
+
+// Builds the problem over `d` with internal parameters `u` (updated in
+// place); with `cache`, the blocks record their normal matrices there.
 void BuildProblem(ceres::Problem& problem, const Engine& e, const Prepared& d, std::size_t chunk,
-                  std::vector<double>& u);
+                  std::vector<double>& u, NormalCache* cache = nullptr);
 ceres::Solver::Options SolverOptions(const Options& o, LinearSolver solver, int max_iterations);
 
 // ---------------------------------------------------------------------------
@@ -311,6 +330,8 @@ Start StartingPoint(const FitState& s);
 // Result::stddev, correlation and covariance_message at the solution u of
 // `engine` (internal parameters); residual_variance scales the covariance
 // when the data carry no sigma.
-void Uncertainty(const FitState& s, const Engine& engine, const std::vector<double>& u, double residual_variance);
+// final_jtj: the final solve's last J^T J (used when its point is close enough to u).
+void Uncertainty(const FitState& s, const Engine& engine, const std::vector<double>& u, double residual_variance,
+                 const std::optional<NormalCache::Normal>& final_jtj);
 
 }  // namespace brdfkit::fit

@@ -138,13 +138,15 @@ Prepared Prepare(const Dataset& data, const std::vector<std::size_t>& index, con
 // Root mean square of the plain metric residuals.
 double Rmse(const Engine& e, const Prepared& d, const std::vector<double>& u) {
   if (d.size() == 0) return 0;
-  const double sum = ChunkedSum(d.size(), 1024, 0.0, [&](std::size_t begin, std::size_t end) {
-    double r[3];
+  constexpr std::size_t chunk = 256;
+  const double sum = ChunkedSum(d.size(), chunk, 0.0, [&](std::size_t begin, std::size_t end) {
     double s = 0;
-    for (std::size_t q = begin; q < end; ++q) {
-      // Plain double evaluation of the metric residual.
-      e.EvalDouble(u.data(), d, q, q + 1, false, r);
-      s += r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
+    for (std::size_t b = begin; b < end; b += chunk) {
+      // Plain double evaluation of the metric residuals, a chunk at a time.
+      double r[3 * chunk];
+      const std::size_t e_end = std::min(end, b + chunk);
+      e.EvalDouble(u.data(), d, b, e_end, false, r);
+      for (std::size_t k = 0; k < 3 * (e_end - b); ++k) s += r[k] * r[k];
     }
     return s;
   });
@@ -153,23 +155,25 @@ double Rmse(const Engine& e, const Prepared& d, const std::vector<double>& u) {
 
 namespace {
 
-// Quantile q of sorted values, linear between order statistics (position
-// q (n - 1), the usual sample quantile).
-double Quantile(const std::vector<double>& sorted, double q) {
-  const double pos = q * double(sorted.size() - 1);
+// Quantile q, linear between order statistics (position q (n - 1), the
+// usual sample quantile), found by selection in linear time; v is reordered.
+double Quantile(std::vector<double>& v, double q) {
+  const double pos = q * double(v.size() - 1);
   const std::size_t i = static_cast<std::size_t>(pos);
-  if (i + 1 >= sorted.size()) return sorted.back();
-  return sorted[i] + (pos - double(i)) * (sorted[i + 1] - sorted[i]);
+  const auto at = v.begin() + static_cast<std::ptrdiff_t>(i);
+  std::nth_element(v.begin(), at, v.end());
+  if (i + 1 >= v.size()) return *at;
+  const double next = *std::min_element(at + 1, v.end());
+  return *at + (pos - double(i)) * (next - *at);
 }
 
 ErrorStats StatsOf(std::vector<double> v) {
   ErrorStats s;
   s.count = v.size();
   if (v.empty()) return s;
-  std::sort(v.begin(), v.end());
+  s.max = *std::max_element(v.begin(), v.end());
   s.median = Quantile(v, 0.5);
   s.p95 = Quantile(v, 0.95);
-  s.max = v.back();
   return s;
 }
 
@@ -188,7 +192,7 @@ void RelativeErrors(const Engine& e, const Prepared& d, const std::vector<double
   const std::size_t n = d.size();
   std::vector<Eigen::Array3d> pred(n);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 256), [&](const tbb::blocked_range<std::size_t>& r) {
-    for (std::size_t q = r.begin(); q < r.end(); ++q) pred[q] = e.Predict(p, d, q);
+    e.PredictRange(p, d, r.begin(), r.end(), pred[r.begin()].data());
   });
   Eigen::Array3d mean = Eigen::Array3d::Zero();
   for (const Eigen::Array3d& g : d.reference) mean += g.abs();

@@ -68,13 +68,12 @@ class ChunkCost final : public ceres::CostFunction {
 // linear solver works on a system 3 chunk / (n + 1) times smaller.
 class CompressedChunkCost final : public ceres::CostFunction {
  public:
-  CompressedChunkCost(const Engine* e, const Prepared* d, std::size_t begin, std::size_t end)
-      : e_(e), d_(d), begin_(begin), end_(end) {
+  CompressedChunkCost(const Engine* e, const Prepared* d, std::size_t begin, std::size_t end, NormalCache* cache,
+                      std::size_t slot)
+      : e_(e), d_(d), begin_(begin), end_(end), cache_(cache), slot_(slot) {
     set_num_residuals(static_cast<int>(e->n() + 1));
     mutable_parameter_block_sizes()->push_back(static_cast<int>(e->n()));
   }
-  // Chunks with fewer residuals than n + 1 gain nothing.
-  static bool Worthwhile(const Engine& e, std::size_t begin, std::size_t end) { return 3 * (end - begin) > e.n() + 1; }
 
   bool Evaluate(double const* const* x, double* r, double** jac) const override {
     const std::size_t n = e_->n(), m = 3 * (end_ - begin_);
@@ -93,10 +92,16 @@ class CompressedChunkCost final : public ceres::CostFunction {
     a.leftCols(Eigen::Index(n)) = Eigen::Map<const RowMajor>(j.data(), Eigen::Index(m), Eigen::Index(n));
     a.col(Eigen::Index(n)) = Eigen::Map<const Eigen::VectorXd>(res.data(), Eigen::Index(m));
     Eigen::HouseholderQR<Eigen::Ref<Eigen::MatrixXd>> qr(a);
-    const Eigen::Index k = Eigen::Index(n + 1);
-    const auto R = a.topRows(k).triangularView<Eigen::Upper>().toDenseMatrix();
+    // A chunk with fewer than n + 1 residuals gives a trapezoidal R, padded with zero rows.
+    const Eigen::Index k = Eigen::Index(n + 1), rows = std::min(k, Eigen::Index(m));
+    Eigen::MatrixXd R = Eigen::MatrixXd::Zero(k, k);
+    R.topRows(rows) = a.topRows(rows).triangularView<Eigen::Upper>();
     Eigen::Map<Eigen::VectorXd>(r, k) = R.col(Eigen::Index(n));
     Eigen::Map<RowMajor>(jac[0], k, Eigen::Index(n)) = R.leftCols(Eigen::Index(n));
+    if (cache_) {
+      cache_->jtj[slot_] = R.leftCols(Eigen::Index(n)).transpose() * R.leftCols(Eigen::Index(n));
+      cache_->at[slot_].assign(x[0], x[0] + n);
+    }
     return true;
   }
 
@@ -104,6 +109,8 @@ class CompressedChunkCost final : public ceres::CostFunction {
   const Engine* e_;
   const Prepared* d_;
   std::size_t begin_, end_;
+  NormalCache* cache_;
+  std::size_t slot_;
 };
 
 ceres::LinearSolverType ToCeres(LinearSolver s) {
@@ -143,21 +150,32 @@ void Bounds(const Layout& layout, const std::vector<bool>& log_mask, std::vector
 
 // Builds the problem over `d` with internal parameters `u` (updated in place).
 void BuildProblem(ceres::Problem& problem, const Engine& e, const Prepared& d, std::size_t chunk,
-                  std::vector<double>& u) {
+                  std::vector<double>& u, NormalCache* cache) {
   problem.AddParameterBlock(u.data(), static_cast<int>(u.size()));
-  for (std::size_t b = 0; b < d.size(); b += chunk) {
-    const std::size_t end = std::min(d.size(), b + chunk);
-    if (CompressedChunkCost::Worthwhile(e, b, end))
-      problem.AddResidualBlock(new CompressedChunkCost(&e, &d, b, end), nullptr, u.data());
-    else
-      problem.AddResidualBlock(new ChunkCost(&e, &d, b, end), nullptr, u.data());
+  const std::size_t blocks = (d.size() + chunk - 1) / chunk;
+  if (cache) {
+    cache->jtj.assign(blocks, Eigen::MatrixXd());
+    cache->at.assign(blocks, {});
   }
+  for (std::size_t b = 0; b < blocks; ++b)
+    problem.AddResidualBlock(
+        new CompressedChunkCost(&e, &d, b * chunk, std::min(d.size(), (b + 1) * chunk), cache, b), nullptr, u.data());
   std::vector<double> lo, hi;
   Bounds(e.layout(), e.log_mask(), lo, hi);
   for (std::size_t k = 0; k < u.size(); ++k) {
     problem.SetParameterLowerBound(u.data(), static_cast<int>(k), lo[k]);
     problem.SetParameterUpperBound(u.data(), static_cast<int>(k), hi[k]);
   }
+}
+
+std::optional<NormalCache::Normal> NormalCache::Last() const {
+  if (jtj.empty() || at[0].empty()) return std::nullopt;
+  Normal out{Eigen::MatrixXd::Zero(jtj[0].rows(), jtj[0].cols()), at[0]};
+  for (std::size_t b = 0; b < jtj.size(); ++b) {
+    if (at[b] != out.at) return std::nullopt;
+    out.jtj += jtj[b];
+  }
+  return out;
 }
 
 ceres::Solver::Options SolverOptions(const Options& o, LinearSolver solver, int max_iterations) {
