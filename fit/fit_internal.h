@@ -330,6 +330,9 @@ Start StartingPoint(const FitState& s);
 // Result::stddev, correlation and covariance_message at the solution u of
 // `engine` (internal parameters); residual_variance scales the covariance
 // when the data carry no sigma.
+// J^T J and J^T r (the cost's gradient) of engine e over d at internal parameters u.
+void NormalEquations(const Engine& e, const Prepared& d, const std::vector<double>& u, std::size_t chunk,
+                     Eigen::MatrixXd& jtj, Eigen::VectorXd& jtr);
 // final_jtj: the final solve's last J^T J (used when its point is close enough to u).
 void Uncertainty(const FitState& s, const Engine& engine, const std::vector<double>& u, double residual_variance,
                  const std::optional<NormalCache::Normal>& final_jtj);

@@ -12,24 +12,38 @@
 
 namespace brdfkit::fit {
 
+void NormalEquations(const Engine& e, const Prepared& d, const std::vector<double>& u, std::size_t chunk,
+                     Eigen::MatrixXd& jtj, Eigen::VectorXd& jtr) {
+  const std::size_t n = e.n();
+  const std::size_t blocks = (d.size() + chunk - 1) / chunk;
+  // [J^T J, J^T r] summed as one n x (n + 1) matrix.
+  const Eigen::MatrixXd sum = ChunkedSum(
+      blocks, 8, Eigen::MatrixXd(Eigen::MatrixXd::Zero(n, n + 1)), [&](std::size_t first, std::size_t last) {
+        Eigen::MatrixXd part = Eigen::MatrixXd::Zero(n, n + 1);
+        std::vector<double> r(3 * chunk), jac(3 * chunk * n);
+        for (std::size_t b = first; b < last; ++b) {
+          const std::size_t begin = b * chunk, end = std::min(d.size(), begin + chunk);
+          e.EvalJacobian(u.data(), d, begin, end, r.data(), jac.data());
+          const auto m = static_cast<Eigen::Index>(3 * (end - begin));
+          Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> J(
+              jac.data(), m, static_cast<Eigen::Index>(n));
+          part.leftCols(Eigen::Index(n)).noalias() += J.transpose() * J;
+          part.col(Eigen::Index(n)).noalias() += J.transpose() * Eigen::Map<const Eigen::VectorXd>(r.data(), m);
+        }
+        return part;
+      });
+  jtj = sum.leftCols(Eigen::Index(n));
+  jtr = sum.col(Eigen::Index(n));
+}
+
 namespace {
 
 // J^T J over all residual blocks (internal parameters).
 Eigen::MatrixXd NormalMatrix(const Engine& e, const Prepared& d, const std::vector<double>& u, std::size_t chunk) {
-  const std::size_t n = e.n();
-  const std::size_t blocks = (d.size() + chunk - 1) / chunk;
-  return ChunkedSum(blocks, 8, Eigen::MatrixXd(Eigen::MatrixXd::Zero(n, n)), [&](std::size_t first, std::size_t last) {
-    Eigen::MatrixXd part = Eigen::MatrixXd::Zero(n, n);
-    std::vector<double> r(3 * chunk), jac(3 * chunk * n);
-    for (std::size_t b = first; b < last; ++b) {
-      const std::size_t begin = b * chunk, end = std::min(d.size(), begin + chunk);
-      e.EvalJacobian(u.data(), d, begin, end, r.data(), jac.data());
-      Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> J(
-          jac.data(), static_cast<Eigen::Index>(3 * (end - begin)), static_cast<Eigen::Index>(n));
-      part.noalias() += J.transpose() * J;
-    }
-    return part;
-  });
+  Eigen::MatrixXd jtj;
+  Eigen::VectorXd jtr;
+  NormalEquations(e, d, u, chunk, jtj, jtr);
+  return jtj;
 }
 
 // Plain-words diagnosis of parameters the data cannot determine; empty when
