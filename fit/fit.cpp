@@ -85,42 +85,15 @@ std::optional<NormalCache::Normal> FinalSolve(const FitState& s, const Engine& e
   return cache.Last();
 }
 
-// The final solve with the parameters that start on a bound held there (an
-// active set): while such a bound stays active, Ceres' bound-constrained
-// steps, a projected line search costing several Jacobian passes per
-// iteration, are avoided. At the solution the gradient decides: when it
-// would pull a held parameter inside (dC/du = J^T r < 0 at a lower bound,
-// > 0 at an upper one), the solve goes on with every parameter free within
-// its bounds.
+// The final solve, holding the bounds that are active at its start
+// (HoldingBounds).
 std::optional<NormalCache::Normal> SolveWithActiveSet(const FitState& s, const Evaluators& model, double loss_scale,
                                                       const Engine& engine, std::vector<double>& u) {
-  std::vector<double> lo, hi;
-  Bounds(s.layout, engine.log_mask(), lo, hi);
-  const auto at_bound = [&](std::size_t j) { return u[j] <= lo[j] || u[j] >= hi[j]; };
-  const std::vector<double> p = engine.ToUser(u);
-  std::vector<bool> held(u.size(), false);
-  Layout inner = s.layout;
-  for (std::size_t k = 0; k < inner.free_of.size(); ++k) {
-    const int j = inner.free_of[k];
-    if (j < 0 || !at_bound(std::size_t(j))) continue;
-    held[std::size_t(j)] = true;
-    inner.free_of[k] = -1;
-    inner.value[k] = p[k];
-  }
-  inner.Renumber();
-  if (std::find(held.begin(), held.end(), true) == held.end() || inner.Free() == 0) return FinalSolve(s, engine, u);
-  const Engine held_engine(model, s.o, loss_scale, inner);
-  std::vector<double> v = held_engine.ToInternal(p);
-  FinalSolve(s, held_engine, v);
-  u = engine.ToInternal(s.res.params);
-  NormalCache::Normal normal{Eigen::MatrixXd(), u};
-  Eigen::VectorXd g;
-  NormalEquations(engine, s.full, u, s.chunk, normal.jtj, g);
-  for (std::size_t j = 0; j < u.size(); ++j) {
-    const bool inward = (u[j] <= lo[j] && g[Eigen::Index(j)] < 0) || (u[j] >= hi[j] && g[Eigen::Index(j)] > 0);
-    if (held[j] && inward) return FinalSolve(s, engine, u);
-  }
-  return normal;
+  std::optional<NormalCache::Normal> last;
+  std::optional<NormalCache::Normal> held =
+      HoldingBounds(model, s.o, loss_scale, engine, s.full, s.chunk, u,
+                    [&](const Engine& e, std::vector<double>& v) { last = FinalSolve(s, e, v); });
+  return held ? held : last;
 }
 
 // Residual variance: chi^2 / dof with sigma weights; otherwise the scale

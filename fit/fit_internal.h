@@ -330,6 +330,19 @@ Start StartingPoint(const FitState& s);
 // Result::stddev, correlation and covariance_message at the solution u of
 // `engine` (internal parameters); residual_variance scales the covariance
 // when the data carry no sigma.
+// A solve over d from internal parameters u of `engine` (updated in place)
+// as an active set: the parameters on a bound are held there and
+// solve(engine', v) runs on the others (within their bounds). At its
+// solution the gradient decides: when it would pull a held parameter
+// inside (dC/du = J^T r < 0 at a lower bound, > 0 at an upper one),
+// solve(engine, u) goes on with every parameter free within its bounds.
+// While the bounds stay active, Ceres' bound-constrained steps (a projected
+// line search costing several Jacobian passes per iteration) are avoided.
+// Returns J^T J at the solution when that check computed it there.
+std::optional<NormalCache::Normal> HoldingBounds(const Evaluators& model, const Options& o, double loss_scale,
+                                                 const Engine& engine, const Prepared& d, std::size_t chunk,
+                                                 std::vector<double>& u,
+                                                 const std::function<void(const Engine&, std::vector<double>&)>& solve);
 // J^T J and J^T r (the cost's gradient) of engine e over d at internal parameters u.
 void NormalEquations(const Engine& e, const Prepared& d, const std::vector<double>& u, std::size_t chunk,
                      Eigen::MatrixXd& jtj, Eigen::VectorXd& jtr);

@@ -168,6 +168,45 @@ void BuildProblem(ceres::Problem& problem, const Engine& e, const Prepared& d, s
   }
 }
 
+std::optional<NormalCache::Normal> HoldingBounds(const Evaluators& model, const Options& o, double loss_scale,
+                                                 const Engine& engine, const Prepared& d, std::size_t chunk,
+                                                 std::vector<double>& u,
+                                                 const std::function<void(const Engine&, std::vector<double>&)>& solve) {
+  std::vector<double> lo, hi;
+  Bounds(engine.layout(), engine.log_mask(), lo, hi);
+  const auto at_bound = [&](std::size_t j) { return u[j] <= lo[j] || u[j] >= hi[j]; };
+  const std::vector<double> p = engine.ToUser(u);
+  std::vector<bool> held(u.size(), false);
+  Layout inner = engine.layout();
+  for (std::size_t k = 0; k < inner.free_of.size(); ++k) {
+    const int j = inner.free_of[k];
+    if (j < 0 || !at_bound(std::size_t(j))) continue;
+    held[std::size_t(j)] = true;
+    inner.free_of[k] = -1;
+    inner.value[k] = p[k];
+  }
+  inner.Renumber();
+  if (std::find(held.begin(), held.end(), true) == held.end() || inner.Free() == 0) {
+    solve(engine, u);
+    return std::nullopt;
+  }
+  const Engine held_engine(model, o, loss_scale, inner);
+  std::vector<double> v = held_engine.ToInternal(p);
+  solve(held_engine, v);
+  u = engine.ToInternal(held_engine.ToUser(v));
+  NormalCache::Normal normal{Eigen::MatrixXd(), u};
+  Eigen::VectorXd g;
+  NormalEquations(engine, d, u, chunk, normal.jtj, g);
+  for (std::size_t j = 0; j < u.size(); ++j) {
+    const bool inward = (u[j] <= lo[j] && g[Eigen::Index(j)] < 0) || (u[j] >= hi[j] && g[Eigen::Index(j)] > 0);
+    if (held[j] && inward) {
+      solve(engine, u);
+      return std::nullopt;
+    }
+  }
+  return normal;
+}
+
 std::optional<NormalCache::Normal> NormalCache::Last() const {
   if (jtj.empty() || at[0].empty()) return std::nullopt;
   Normal out{Eigen::MatrixXd::Zero(jtj[0].rows(), jtj[0].cols()), at[0]};

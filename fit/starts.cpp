@@ -465,7 +465,13 @@ class StartSearch {
                   const std::string& stage) {
     std::vector<double> u = e.ToInternal(p);
     ClampToBounds(e, u);
-    const ceres::Solver::Summary summary = SolveStart(s_, e, d, u, iterations, ftol, stage);
+    ceres::Solver::Summary summary;
+    const auto solve = [&](const Engine& en, std::vector<double>& v) {
+      summary = SolveStart(s_, en, d, v, iterations, ftol, stage);
+    };
+    // On all samples (the dearest solves) the active bounds are held.
+    if (&d == &full_) HoldingBounds(evaluators_, plain_options_, 1.0, e, d, s_.chunk, u, solve);
+    else solve(e, u);
     Candidate c;
     if (!summary.IsSolutionUsable()) return c;
     c.p = e.ToUser(u);
