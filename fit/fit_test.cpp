@@ -466,7 +466,9 @@ TEST(Fit, OptimumOnABoundMeetsTheOptimalityConditions) {
         EXPECT_LE(std::abs(gk), tol);
       }
     }
-    if (metric == Metric::kL2) EXPECT_GE(on_bound, 1);  // the l2 optimum has a channel of the albedo at 0
+    if (metric == Metric::kL2) {
+      EXPECT_GE(on_bound, 1);  // the l2 optimum has a channel of the albedo at 0
+    }
   }
 }
 
