@@ -61,18 +61,25 @@ def write_beckmann(path):
         "lambert.albedo": (0.12, 0.09, 0.05), "beckmann.alpha": 0.08, "beckmann.f0": (0.9, 0.75, 0.55)}))
 
 
-def run(exe, model, data, metric, out_json):
+def timed_fit(args, out_json):
+    """Runs one `brdfkit fit --json` command line (args), its JSON to out_json:
+    wall and CPU seconds (user + system, from wait4), peak resident MiB, cost,
+    iterations and starts."""
     t0 = time.monotonic()
     with open(out_json, "w") as out:
-        p = subprocess.Popen([exe, "fit", "--model", model, "--data", data, "--metric", metric,
-                              "--threads", "2", "--json"], stdout=out, stderr=subprocess.DEVNULL)
+        p = subprocess.Popen(args, stdout=out, stderr=subprocess.DEVNULL)
         _, status, usage = os.wait4(p.pid, 0)
     wall = time.monotonic() - t0
     if status != 0:
-        raise SystemExit(f"{exe} fit {model} {metric} failed ({status})")
+        raise SystemExit(f"{' '.join(args)} failed ({status})")
     r = json.load(open(out_json))
     return {"wall": wall, "cpu": usage.ru_utime + usage.ru_stime, "rss_mib": usage.ru_maxrss / 1024,
             "cost": r["cost"], "iterations": r["iterations"], "starts": r["starts"]}
+
+
+def run(exe, model, data, metric, out_json):
+    return timed_fit([exe, "fit", "--model", model, "--data", data, "--metric", metric, "--threads", "2", "--json"],
+                     out_json)
 
 
 def main():

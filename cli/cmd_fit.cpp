@@ -214,7 +214,8 @@ void RegisterFit(CLI::App& app) {
                      trace_plot;
   static std::vector<std::string> fix, tie, bounds;
   static double max_theta = -1;
-  static int threads = 0, max_iter = 200, starts = 5, aperture_order = 0;
+  static int threads = 0, max_iter = 200, starts = 5, aperture_order = 0, random_starts = 0;
+  static std::uint64_t seed = 1;
   static bool json = false, no_cov = false, ignore_sigma = false;
   cmd->add_option("--data,-d", data, "CSV table (theta_i,phi_i,theta_o,phi_o,f_r,f_g,f_b[,sigma_*]) or MERL .binary")
       ->required();
@@ -230,6 +231,10 @@ void RegisterFit(CLI::App& app) {
   cmd->add_option("--threads", threads, "threads (default 0: every core; more than the cores are capped)");
   cmd->add_option("--max-iterations", max_iter, "iterations of the final solve (default 200)");
   cmd->add_option("--starts", starts, "starts per roughness-like parameter (default 5)");
+  cmd->add_option("--random-starts", random_starts,
+                  "replace the start search by N random starts, each solved to convergence (an independent check "
+                  "of the global optimum; default 0: off)");
+  cmd->add_option("--seed", seed, "seed of --random-starts (default 1)");
   cmd->add_option("--fix", fix, "hold parameters fixed: name=value (colour: v or r:g:b), repeatable or comma-separated");
   cmd->add_option("--tie", tie, "tie parameters: follower=leader (same kind and size), repeatable");
   cmd->add_option("--bounds", bounds, "narrow a parameter's range: name=lo:hi within the model's, repeatable");
@@ -254,6 +259,10 @@ void RegisterFit(CLI::App& app) {
       throw UsageError("--max-theta-deg must be in (0, 90]");
     if (max_iter < 1) throw UsageError("--max-iterations must be at least 1");
     if (starts < 1) throw UsageError("--starts must be at least 1");
+    if (random_starts < 0 || random_starts > fit::kMaxRandomStarts)
+      throw UsageError("--random-starts must be in [0, " + std::to_string(fit::kMaxRandomStarts) + "]");
+    o.random_starts = random_starts;
+    o.seed = seed;
     o.max_theta_deg = max_theta;
     o.num_threads = ThreadCount(threads);
     o.max_iterations = max_iter;

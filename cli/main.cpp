@@ -34,7 +34,11 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    // --help and --version print and succeed; any other parse error (text
+    // where a number must be, a missing option) is a usage error as all others.
+    if (e.get_exit_code() == 0) return app.exit(e);
+    std::fprintf(stderr, "brdfkit: error: %s\n", e.what());
+    return 2;
   } catch (const brdfkit::cli::ResultError& e) {
     std::fprintf(stderr, "brdfkit: error: %s\n", e.what());
     return 1;

@@ -42,9 +42,9 @@ Options WithoutLoss(const Options& o) {
 }
 
 // The final solve on all samples from internal parameters u (updated in
-// place): the solution, its cost and the solver's report.
-// The normal matrix of Ceres' last Jacobian (at the point before its last
-// step, or at the solution).
+// place), which records the solution, its cost and the solver's report;
+// returns the normal matrix of Ceres' last Jacobian (at the point before its
+// last step, or at the solution).
 std::optional<NormalCache::Normal> FinalSolve(const FitState& s, const Engine& engine, std::vector<double>& u) {
   Result& res = s.res;
   const Options& o = s.o;

@@ -36,6 +36,7 @@
 #include <Eigen/Core>
 
 #include <cstddef>
+#include <cstdint>
 #include <functional>
 #include <memory>
 #include <optional>
@@ -104,6 +105,8 @@ Dataset FromUtia(const UtiaTable& table, const std::string& source = "");
 // FILE.json.
 Dataset LoadDataset(const std::string& path);
 
+inline constexpr int kMaxRandomStarts = 100000;
+
 enum class LinearSolver { kDenseQr, kDenseNormalCholesky, kIterativeSchur, kCgnr };
 LinearSolver ParseLinearSolver(const std::string& name);  // throws std::invalid_argument
 std::string LinearSolverName(LinearSolver s);
@@ -154,6 +157,13 @@ struct Options {
   // turn) and start from its optimum with the lobe seeded from the
   // residual, so that the fit is never worse than a sub-sum's (see Fit).
   bool nested = true;
+  // An independent check of the start strategy: when positive, it is
+  // replaced by this many random starts, each solved to convergence (on the
+  // middle-sized subset of 16 x start_subset samples when the table has
+  // more than 64 x start_subset), drawn with `seed`; every distinct optimum
+  // goes to Result::local_optima and the best is refined on all samples.
+  int random_starts = 0;  // at most kMaxRandomStarts
+  std::uint64_t seed = 1;
   // Called after every iteration of the final solve (progress display).
   std::function<void(int iteration, double seconds, double cost)> progress;
 };

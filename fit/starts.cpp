@@ -24,6 +24,7 @@ struct Candidate {
   double cost = std::numeric_limits<double>::infinity();
   std::string origin;
   bool on_all = true;  // solved on all samples (else on the middle subset; cost on all samples)
+  bool nested = false;  // a sub-sum's optimum, refined already
 };
 
 // On large tables a sub-sum whose cost at its middle-subset optimum is more
@@ -31,6 +32,18 @@ struct Candidate {
 // samples: that solve lowered the cost by 0.7 % at most in the measured
 // cases (bench/RESULTS.md), and it is the most expensive step of a search.
 constexpr double kNestedMargin = 0.05;
+
+// Coarse to fine on large tables (more than 64 x start_subset samples): a
+// start's optimum is first refined on a middle-sized subset (16 x
+// start_subset), to this function tolerance, so that the solve on all
+// samples (whose iterations cost the most) starts near its optimum and
+// needs few.
+bool LargeTable(const FitState& s) { return s.full.size() > 64 * s.o.start_subset; }
+std::size_t MiddleSize(const Options& o) { return 16 * o.start_subset; }
+constexpr double kMiddleTolerance = 1e-10;
+std::string MiddleStage(const std::string& name, std::size_t samples) {
+  return (name.empty() ? "" : name + ": ") + "refine (" + std::to_string(samples) + " samples)";
+}
 
 // The packed slots of lobe k (its own and its weight).
 std::vector<std::size_t> LobeSlots(const Model& m, std::size_t k) {
@@ -163,6 +176,20 @@ ceres::Solver::Summary SolveStart(const FitState& s, const Engine& e, const Prep
   return summary;
 }
 
+// Cost (half the sum of squared residuals) of internal parameters u over d;
+// infinite where a residual is not finite.
+double CostOf(const Engine& e, const Prepared& d, const std::vector<double>& u) {
+  constexpr std::size_t chunk = 256;
+  return ChunkedSum(d.size(), chunk, 0.0, [&](std::size_t begin, std::size_t end) {
+    double r[3 * chunk];
+    // A non-finite residual makes the point unusable.
+    if (!e.EvalDouble(u.data(), d, begin, end, true, r)) return std::numeric_limits<double>::infinity();
+    double sum = 0;
+    for (std::size_t k = 0; k < 3 * (end - begin); ++k) sum += 0.5 * r[k] * r[k];
+    return sum;
+  });
+}
+
 // Multi-start and nested sub-sums of a sum of lobes (Fit's start strategy).
 // Level(mask) fits the sum with the lobes in `mask` switched off.
 class StartSearch {
@@ -171,7 +198,10 @@ class StartSearch {
       : model_(model), s_(s), o_(s.o), base_(s.layout), full_(s.full), subset_(subset), middle_(middle) {
     plain_options_ = o_;
     for (const ParamInfo& p : model.Info().params)
-      for (int c = 0; c < (p.colour ? 3 : 1); ++c) channel_.push_back(p.colour ? c : -1);
+      for (int c = 0; c < (p.colour ? 3 : 1); ++c) {
+        channel_.push_back(p.colour ? c : -1);
+        log_scale_.push_back(p.scale == ParamInfo::Scale::kLog);
+      }
     plain_options_.loss = Loss::kNone;
     const std::size_t L = model.LobeCount();
     const ModelInfo& info = model.Info();
@@ -246,7 +276,7 @@ class StartSearch {
     // worse than its nested sub-sums.
     std::vector<Candidate> candidates;
     for (const auto& [kid, k] : kids)
-      candidates.push_back({kid.p, kid.cost, "nested " + ActiveSpec(mask | (1u << k)), kid.on_all});
+      candidates.push_back({kid.p, kid.cost, "nested " + ActiveSpec(mask | (1u << k)), kid.on_all, true});
     std::vector<Candidate> distinct;
     for (const Candidate& c : solved) {
       // The best four distinct subset optima: each costs a pass over all samples.
@@ -263,7 +293,7 @@ class StartSearch {
     if (top) {
       for (const Candidate& c : optima) s_.res.local_optima.push_back({c.cost, c.p, c.origin});
       best = optima.front();
-    } else if (middle_ && optima.front().origin.rfind("nested ", 0) != 0) {
+    } else if (middle_ && !optima.front().nested) {
       // Large tables: refined on the middle subset; the solve on all
       // samples waits for the sum's final cost (RefineNested).
       best = optima.front();
@@ -381,8 +411,12 @@ class StartSearch {
   }
 
   // The sub-sum's optimum p (lobe k off) with lobe k switched back on at
-  // each start width, its switch scaled by least squares to the residual
-  // the sub-sum leaves on the subset.
+  // each start width and at the width of each active copy of it (so that a
+  // lobe can split in two), each with its other parameters at their
+  // defaults and again with its linear colour parameters at their lower
+  // bounds (a Schlick f0 of 0 leaves only the grazing term: with a copy at
+  // f0 = 1 the pair shapes its own Fresnel curve); its switch scaled by
+  // least squares to the residual the sub-sum leaves on the subset.
   std::vector<std::vector<double>> Seeded(const Engine& e, const std::vector<double>& p, std::size_t k,
                                           const Layout& layout) const {
     const ModelInfo& info = model_.Info();
@@ -392,42 +426,53 @@ class StartSearch {
       std::size_t i = 0, off = 0;
       while (off + (info.params[i].colour ? 3 : 1) <= std::size_t(ws)) off += info.params[i++].colour ? 3 : 1;
       widths = StartWidths(layout, std::size_t(ws), info.params[i].default_value, o_.starts_per_param);
+      for (std::size_t c = 0; c < model_.LobeCount(); ++c)
+        if (c != k && model_.LobeInfo(c).name == model_.LobeInfo(k).name && WidthSlot(model_, c) >= 0 &&
+            layout.free_of[std::size_t(WidthSlot(model_, c))] >= 0)
+          widths.push_back(std::clamp(p[std::size_t(WidthSlot(model_, c))], layout.lo[std::size_t(ws)],
+                                      layout.hi[std::size_t(ws)]));
     }
     const std::vector<std::size_t> sw = SwitchSlots(model_, k);
+    // Linear colour slots of lobe k, not switches, free, whose lower bound differs from the default.
     const std::vector<double> defaults = info.Defaults();
+    std::vector<std::size_t> low;
+    for (std::size_t q : LobeSlots(model_, k))
+      if (channel_[q] >= 0 && !log_scale_[q] && std::find(sw.begin(), sw.end(), q) == sw.end() &&
+          layout.free_of[q] >= 0 && layout.leader[q] < 0 && layout.lo[q] != defaults[q])
+        low.push_back(q);
     std::vector<std::vector<double>> out;
-    for (double width : widths) {
-      std::vector<double> on = p;
-      for (std::size_t q : LobeSlots(model_, k)) on[q] = defaults[q];
-      if (ws >= 0) on[std::size_t(ws)] = width;
-      // Per channel for colour switches, one scale for a weight.
-      Eigen::Array3d rg = Eigen::Array3d::Zero(), gg = Eigen::Array3d::Zero();
-      for (std::size_t q = 0; q < subset_.size(); ++q) {
-        const Eigen::Array3d base = e.Predict(p, subset_, q), with = e.Predict(on, subset_, q);
-        const Eigen::Array3d g = with - base, r = subset_.reference[q] - base;
-        rg += r * g;
-        gg += g * g;
+    for (double width : widths)
+      for (int variant = 0; variant < (low.empty() ? 1 : 2); ++variant) {
+        std::vector<double> on = p;
+        for (std::size_t q : LobeSlots(model_, k)) on[q] = defaults[q];
+        if (ws >= 0) on[std::size_t(ws)] = width;
+        if (variant == 1)
+          for (std::size_t q : low) on[q] = layout.lo[q];
+        // Per channel for colour switches, one scale for a weight.
+        Eigen::Array3d rg = Eigen::Array3d::Zero(), gg = Eigen::Array3d::Zero();
+        for (std::size_t q = 0; q < subset_.size(); ++q) {
+          const Eigen::Array3d base = e.Predict(p, subset_, q), with = e.Predict(on, subset_, q);
+          const Eigen::Array3d g = with - base, r = subset_.reference[q] - base;
+          rg += r * g;
+          gg += g * g;
+        }
+        for (std::size_t q : sw) {
+          const int c = channel_[q];  // -1: a weight, scaling all channels
+          const double num = c < 0 ? rg.sum() : rg[c], den = c < 0 ? gg.sum() : gg[c];
+          const double scale = den > 0 ? num / den : 0.0;
+          // A small positive floor: at 0 the lobe's other parameters have no gradient.
+          on[q] = std::clamp(on[q] * std::max(scale, 1e-3), layout.lo[q], layout.hi[q]);
+        }
+        out.push_back(std::move(on));
       }
-      for (std::size_t q : sw) {
-        const int c = channel_[q];  // -1: a weight, scaling all channels
-        const double num = c < 0 ? rg.sum() : rg[c], den = c < 0 ? gg.sum() : gg[c];
-        const double scale = den > 0 ? num / den : 0.0;
-        // A small positive floor: at 0 the lobe's other parameters have no gradient.
-        on[q] = std::clamp(on[q] * std::max(scale, 1e-3), layout.lo[q], layout.hi[q]);
-      }
-      out.push_back(std::move(on));
-    }
     return out;
   }
 
-  // Coarse to fine: on large tables p is first refined on the middle-sized
-  // subset, so that the solve on all samples (whose iterations cost the
-  // most) starts near its optimum and needs few.
-  // A sub-sum's optimum was refined on all samples already.
+  // Coarse to fine (LargeTable): p refined on the middle subset, unless it
+  // is a sub-sum's optimum, refined already.
   std::vector<double> Nearer(const Engine& e, const Candidate& p, const std::string& name) {
-    if (!middle_ || p.origin.rfind("nested ", 0) == 0) return p.p;
-    const Candidate c = Solve(e, *middle_, p.p, o_.max_iterations, 1e-10,
-                              name + ": refine (" + std::to_string(middle_->size()) + " samples)");
+    if (!middle_ || p.nested) return p.p;
+    const Candidate c = Solve(e, *middle_, p.p, o_.max_iterations, kMiddleTolerance, MiddleStage(name, middle_->size()));
     return std::isfinite(c.cost) ? c.p : p.p;
   }
 
@@ -437,27 +482,16 @@ class StartSearch {
   // samples than the optimum found there (a sub-sum's, already refined on
   // all samples), so that the final solve starts no higher.
   Candidate FinalStart(const Candidate& best) {
-    if (!middle_ || best.origin.rfind("nested ", 0) == 0) return best;
+    if (!middle_ || best.nested) return best;
     const Engine plain(evaluators_, plain_options_, 1.0, base_);
-    Candidate c{Nearer(plain, best, ActiveSpec(0)), 0, best.origin};
+    Candidate c{Nearer(plain, best, ActiveSpec(0)), 0, best.origin, false};
     c.cost = FullCost(plain, c.p);
     return c.cost <= best.cost ? c : best;
   }
 
  private:
-  // Cost (half the sum of squared residuals) of p on all samples.
-  double FullCost(const Engine& e, const std::vector<double>& p) const {
-    const std::vector<double> u = e.ToInternal(p);
-    constexpr std::size_t chunk = 256;
-    return ChunkedSum(full_.size(), chunk, 0.0, [&](std::size_t begin, std::size_t end) {
-      double r[3 * chunk];
-      // A non-finite residual makes the point unusable.
-      if (!e.EvalDouble(u.data(), full_, begin, end, true, r)) return std::numeric_limits<double>::infinity();
-      double s = 0;
-      for (std::size_t k = 0; k < 3 * (end - begin); ++k) s += 0.5 * r[k] * r[k];
-      return s;
-    });
-  }
+  // Cost of p on all samples.
+  double FullCost(const Engine& e, const std::vector<double>& p) const { return CostOf(e, full_, e.ToInternal(p)); }
 
   // Solves from p over `d` for at most `iterations`; the solution is put in
   // canonical order.
@@ -495,6 +529,7 @@ class StartSearch {
   const Prepared* middle_;  // the middle-sized subset on large tables, else null
   std::vector<bool> untouched_;
   std::vector<int> channel_;  // packed slot -> channel of a colour parameter, else -1
+  std::vector<bool> log_scale_;  // packed slot -> on a log scale
   std::map<unsigned, Candidate> memo_;
   std::vector<unsigned> top_kids_;  // the sub-sums with one lobe removed
 };
@@ -543,8 +578,8 @@ Start SearchSum(const FitState& s, const Model& sum) {
   };
   auto state = std::make_shared<Search>();
   state->subset = Prepare(s.data, SubsetIndex(s, s.o.start_subset), s.o);
-  const bool large = s.full.size() > 64 * s.o.start_subset;
-  if (large) state->middle = Prepare(s.data, SubsetIndex(s, 16 * s.o.start_subset), s.o);
+  const bool large = LargeTable(s);
+  if (large) state->middle = Prepare(s.data, SubsetIndex(s, MiddleSize(s.o)), s.o);
   StartSearch& search = state->search.emplace(sum, s, state->subset, large ? &state->middle : nullptr);
   const Candidate best = search.Level(0, true);
   if (!std::isfinite(best.cost)) NoFiniteStart(s);
@@ -562,6 +597,65 @@ Start SearchSum(const FitState& s, const Model& sum) {
       return u;
     };
   return start;
+}
+
+// The independent search of Options::random_starts: points drawn at random
+// (seed Options::seed) in the internal space, each solved to convergence on
+// all samples (on large tables on the middle subset, costed on all); every
+// distinct optimum is listed and the best one kept. Log-scale parameters are
+// drawn log-uniformly within a factor 100 of the model's default, linear
+// ones uniformly from their lower bound to three times the default's
+// distance above it, both within the bounds.
+Start RandomSearch(const FitState& s) {
+  const Engine& e = s.plain;
+  std::vector<double> lo, hi;
+  Bounds(e.layout(), e.log_mask(), lo, hi);
+  const std::vector<double> mid = e.ToInternal(s.model.Info().Defaults());
+  std::vector<double> from(lo.size()), to(lo.size());
+  for (std::size_t j = 0; j < lo.size(); ++j) {
+    double a = e.log_mask()[j] ? mid[j] - std::log(100.0) : lo[j];
+    double b = e.log_mask()[j] ? mid[j] + std::log(100.0) : lo[j] + 3 * (mid[j] - lo[j]);
+    a = std::max(a, lo[j]);
+    b = std::min(b, hi[j]);
+    if (!(a < b)) {  // a default on a bound: the whole range
+      a = lo[j];
+      b = hi[j];
+    }
+    from[j] = a;
+    to[j] = b;
+  }
+  std::optional<Prepared> middle;
+  if (LargeTable(s)) middle = Prepare(s.data, SubsetIndex(s, MiddleSize(s.o)), s.o);
+  const Prepared& d = middle ? *middle : s.full;
+  const std::string where = middle ? std::to_string(d.size()) + " samples" : "all samples";
+  std::mt19937_64 rng(s.o.seed);
+  std::vector<std::pair<double, std::vector<double>>> solved;  // cost on all samples, internal parameters
+  for (int k = 1; k <= s.o.random_starts; ++k) {
+    std::vector<double> u(lo.size());
+    for (std::size_t j = 0; j < u.size(); ++j) u[j] = std::uniform_real_distribution<double>(from[j], to[j])(rng);
+    const ceres::Solver::Summary summary = SolveStart(s, e, d, u, s.o.max_iterations, s.o.function_tolerance,
+                                                      "random start " + std::to_string(k) + " (" + where + ")");
+    if (!summary.IsSolutionUsable()) continue;
+    const double cost = middle ? CostOf(e, s.full, u) : summary.final_cost;
+    if (std::isfinite(cost)) solved.emplace_back(cost, std::move(u));
+  }
+  if (solved.empty()) NoFiniteStart(s);
+  std::stable_sort(solved.begin(), solved.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+  // Distinct: no two within 1e-3 in every internal parameter (relative for widths).
+  std::vector<std::vector<double>> distinct;
+  for (const auto& [cost, u] : solved) {
+    bool seen = false;
+    for (const std::vector<double>& v : distinct) {
+      double dist = 0;
+      for (std::size_t j = 0; j < u.size(); ++j) dist = std::max(dist, std::abs(u[j] - v[j]));
+      seen = seen || dist < 1e-3;
+    }
+    if (seen) continue;
+    distinct.push_back(u);
+    s.res.local_optima.push_back({cost, e.ToUser(u), "random start"});
+  }
+  Keep(s, s.res.local_optima.front().params);
+  return {solved.front().second, {}};
 }
 
 // One lobe (or a model outside the registry): the grid starts, each solved
@@ -585,18 +679,12 @@ std::vector<double> MultiStart(const FitState& s) {
   return best_u;
 }
 
-// Coarse to fine: on large tables the best start is first refined on a
-// 16x larger subset, so the full solve (whose iterations cost the most)
-// starts near its optimum and needs only a few.
-void RefineOnLargerSubset(const FitState& s, std::vector<double>& best_u) {
-  const Prepared middle = Prepare(s.data, SubsetIndex(s, 16 * s.o.start_subset), s.o);
-  ceres::Problem problem;
+// Coarse to fine (LargeTable) for one lobe: the best start refined on the middle subset.
+void RefineOnMiddle(const FitState& s, std::vector<double>& best_u) {
+  const Prepared middle = Prepare(s.data, SubsetIndex(s, MiddleSize(s.o)), s.o);
   std::vector<double> u = best_u;
-  BuildProblem(problem, s.plain, middle, s.chunk, u);
-  ceres::Solver::Options so = SolverOptions(s.o, LinearSolver::kDenseQr, s.o.max_iterations);
-  so.function_tolerance = 1e-10;
-  ceres::Solver::Summary summary;
-  ceres::Solve(so, &problem, &summary);
+  const ceres::Solver::Summary summary =
+      SolveStart(s, s.plain, middle, u, s.o.max_iterations, kMiddleTolerance, MiddleStage("", middle.size()));
   if (summary.IsSolutionUsable()) best_u = u;
 }
 
@@ -614,11 +702,12 @@ Start StartingPoint(const FitState& s) {
     s.res.starts = 1;
     return {u, {}};
   }
+  if (o.random_starts > 0) return RandomSearch(s);
   // Only a registered model's sum has lobes to switch off and add back.
   const Model* sum = s.model.AsModel();
   if (sum && sum->LobeCount() >= 2) return SearchSum(s, *sum);
   std::vector<double> u = MultiStart(s);
-  if (s.full.size() > 64 * o.start_subset) RefineOnLargerSubset(s, u);
+  if (LargeTable(s)) RefineOnMiddle(s, u);
   return {u, {}};
 }
 

@@ -181,6 +181,9 @@ TEST_F(BadInput, FitConstraintsNameTheParameter) {
   rejected("--tie", "ggx#2.alpha=ggx.alpha,ggx.alpha=ggx#2.alpha", {"--tie: the ties form a cycle", "ggx.alpha"});
   rejected("--fix", "lambert.albedo=0.1,ggx.alpha=0.1,ggx.f0=0.1,ggx.weight=1,ggx#2.alpha=0.2,ggx#2.f0=0.1,ggx#2.weight=0",
            {"lambert+ggx+ggx", "nothing left to fit"});
+  rejected("--random-starts", "-1", {"--random-starts must be in [0, 100000]"});
+  rejected("--random-starts", "1000000", {"--random-starts must be in [0, 100000]"});
+  rejected("--random-starts", "many", {"--random-starts"});
 }
 
 // Missing samples are not errors: counted, reported, skipped.

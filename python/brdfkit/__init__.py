@@ -193,7 +193,7 @@ def synth(model, params=None, *, instrument=None, seed=0, out=(), threads=0):
 
 def fit(model, data, wo=None, f=None, sigma=None, *, init=None, metric="l2", loss="none", solver="dense_qr",
         max_theta_deg=-1.0, threads=2, max_iterations=200, starts=5, covariance=True, use_sigma=True,
-        instrument=None, aperture_order=0, fix=None, tie=None, bounds=None):
+        instrument=None, aperture_order=0, fix=None, tie=None, bounds=None, random_starts=0, seed=1):
     """Least-squares fit of a model to measured reflectance, as ``brdfkit fit --json``.
 
     Parameters
@@ -238,6 +238,10 @@ def fit(model, data, wo=None, f=None, sigma=None, *, init=None, metric="l2", los
         (``"ggx.f0=0.04,lambert.albedo=0.2:0.3:0.4"``). A name that does not
         exist, a value or bounds out of range, a tie between different kinds,
         a tie cycle or nothing left to fit raise ValueError naming the parameter.
+    random_starts, seed : int
+        When random_starts > 0, the start strategy is replaced by that many
+        random starts (drawn with seed), each solved to convergence: an
+        independent check that the default search finds the global optimum.
 
     Returns
     -------
@@ -253,7 +257,7 @@ def fit(model, data, wo=None, f=None, sigma=None, *, init=None, metric="l2", los
     return _brdfkit._fit(model, data, wo, f, sigma, init, metric, loss, solver, max_theta_deg, threads,
                          max_iterations, starts, covariance, use_sigma, instrument, aperture_order,
                          _assignments(fix, "fix", _values), _assignments(tie, "tie", str),
-                         _assignments(bounds, "bounds", _range))
+                         _assignments(bounds, "bounds", _range), random_starts, seed)
 
 
 def _values(v):

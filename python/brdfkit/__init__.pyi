@@ -89,14 +89,16 @@ def fit(model: Union[Model, str, PythonModel], data: Union[PathArg, ArrayLike], 
         instrument: Union[None, PathArg, dict] = None, aperture_order: int = 0,
         fix: Union[None, str, Mapping[str, Union[float, Sequence[float]]]] = None,
         tie: Union[None, str, Mapping[str, str]] = None,
-        bounds: Union[None, str, Mapping[str, tuple[float, float]]] = None) -> dict[str, Any]:
+        bounds: Union[None, str, Mapping[str, tuple[float, float]]] = None,
+        random_starts: int = 0, seed: int = 1) -> dict[str, Any]:
     """A fit, as ``brdfkit fit --json``, plus packed arrays, covariance and the fitted Model.
 
     fix {"ggx.f0": 0.04} holds parameters, tie {"ggx#2.f0": "ggx.f0"} makes one follow
     another, bounds {"ggx.alpha": (0.01, 0.5)} narrows a range (or the command line's
     "name=value,..." text); ValueError naming the parameter when one does not apply.
     The result lists local_optima (cost, params, origin) and kept (the index of the one
-    refined into the result); fixed (names) and tied (follower: leader)."""
+    refined into the result); fixed (names) and tied (follower: leader). random_starts > 0
+    replaces the start search by that many random starts (seed), each solved to convergence."""
 
 def stress(models: Union[str, Sequence[str]] = (), *, merl: Union[None, PathArg] = None,
            sweep_only: bool = False) -> dict[str, Any]:

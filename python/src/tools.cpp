@@ -194,7 +194,8 @@ py::dict Fit(const py::object& model, const py::object& data, const py::object& 
              const py::object& sigma, const py::object& init, const std::string& metric, const std::string& loss,
              const std::string& solver, double max_theta_deg, int threads, int max_iterations, int starts,
              bool covariance, bool use_sigma, const py::object& instrument, int aperture_order,
-             const std::string& fix, const std::string& tie, const std::string& bounds) {
+             const std::string& fix, const std::string& tie, const std::string& bounds, int random_starts,
+             std::uint64_t seed) {
   fit::Options o;
   o.fix = fix;
   o.tie = tie;
@@ -211,6 +212,10 @@ py::dict Fit(const py::object& model, const py::object& data, const py::object& 
   if (threads < 1) throw ArgumentError("threads must be at least 1");
   if (max_iterations < 1) throw ArgumentError("max_iterations must be at least 1");
   if (starts < 1) throw ArgumentError("starts must be at least 1");
+  if (random_starts < 0 || random_starts > fit::kMaxRandomStarts)
+    throw ArgumentError("random_starts must be in [0, " + std::to_string(fit::kMaxRandomStarts) + "]");
+  o.random_starts = random_starts;
+  o.seed = seed;
   o.max_theta_deg = max_theta_deg;
   o.num_threads = threads;
   o.max_iterations = max_iterations;
@@ -406,7 +411,7 @@ void BindTools(py::module_& m) {
         py::arg("init"), py::arg("metric"), py::arg("loss"), py::arg("solver"), py::arg("max_theta_deg"),
         py::arg("threads"), py::arg("max_iterations"), py::arg("starts"), py::arg("covariance"),
         py::arg("use_sigma"), py::arg("instrument"), py::arg("aperture_order"), py::arg("fix"), py::arg("tie"),
-        py::arg("bounds"));
+        py::arg("bounds"), py::arg("random_starts"), py::arg("seed"));
   m.def("_stress", &Stress, py::arg("models"), py::arg("merl"), py::arg("sweep_only"));
   m.def("_read_merl", &ReadMerl, py::arg("path"));
   m.def("_write_merl", &WriteMerl, py::arg("path"), py::arg("data"));

@@ -1,0 +1,155 @@
+// The realistic benchmark set (bench/fit_materials.json) at a reduced size:
+// each material, from outside the fitted families, tabulated on every
+// stride-th MERL bin with the set's noise, missing cells and grazing
+// outliers, is fitted by lambert plus one, two and three GGX lobes: a lobe
+// more never fits worse, and the fit reaches the optimum of an independent
+// brute-force search (Options::random_starts). bench/fit_materials.py runs
+// the full-size set.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <limits>
+#include <random>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "brdf/merl.h"
+#include "brdf/model.h"
+#include "brdf/params.h"
+#include "fit/fit.h"
+
+namespace brdfkit {
+namespace {
+
+using fit::Dataset;
+using fit::Metric;
+using fit::Options;
+using fit::Result;
+
+const nlohmann::json& Set() {
+  static const nlohmann::json set = [] {
+    std::ifstream in(std::string(BRDFKIT_SOURCE_DIR) + "/bench/fit_materials.json");
+    return nlohmann::json::parse(in);
+  }();
+  return set;
+}
+
+// The set's parameter object as "name=value,name=r:g:b".
+std::string ParamText(const nlohmann::json& params) {
+  std::string s;
+  for (const auto& [name, v] : params.items()) {
+    s += (s.empty() ? "" : ",") + name + "=";
+    if (v.is_array())
+      s += FormatDouble(v[0].get<double>()) + ":" + FormatDouble(v[1].get<double>()) + ":" +
+           FormatDouble(v[2].get<double>());
+    else
+      s += FormatDouble(v.get<double>());
+  }
+  return s;
+}
+
+// Material m of the set on every stride-th bin of the MERL grid (theta_h,
+// theta_d and phi_d alike), with the set's noise.
+Dataset Tabulate(const nlohmann::json& m, int stride) {
+  const Model model = Model::Parse(m["model"].get<std::string>());
+  const std::vector<double> p = ParseParams(model.Info(), ParamText(m["params"]));
+  const auto b = model.Make<double>();
+  const nlohmann::json& noise = Set()["noise"];
+  const double sd = noise["lognormal_sd"], missing = noise["missing"], grazing_cos =
+      std::cos(noise["grazing_theta_deg"].get<double>() * kPi / 180),
+      grazing_fraction = noise["grazing_fraction"], grazing_factor = noise["grazing_factor"];
+  std::mt19937_64 rng(m["seed"].get<std::uint64_t>());
+  std::normal_distribution<double> normal(0.0, sd);
+  std::uniform_real_distribution<double> uniform(0.0, 1.0);
+  Dataset d;
+  d.source = m["name"].get<std::string>();
+  for (int i = stride / 2; i < MerlTable::kThetaH; i += stride)
+    for (int j = stride / 2; j < MerlTable::kThetaD; j += stride)
+      for (int k = stride / 2; k < MerlTable::kPhiD; k += stride) {
+        fit::Sample s;
+        MerlTable::BinDirections(i, j, k, s.wi, s.wo);
+        const double factor = std::exp(normal(rng));
+        const bool drop = uniform(rng) < missing, outlier = uniform(rng) < grazing_fraction;
+        if (!(s.wi.z() > 0 && s.wo.z() > 0)) continue;
+        if (drop) {
+          ++d.missing;
+          continue;
+        }
+        s.f = b->Eval(p.data(), s.wi, s.wo) * factor;
+        if (outlier && std::min(s.wi.z(), s.wo.z()) < grazing_cos) s.f *= grazing_factor;
+        s.sigma.setZero();
+        d.samples.push_back(s);
+      }
+  return d;
+}
+
+std::string SumOf(int lobes) {
+  const nlohmann::json& f = Set()["fits"];
+  std::string spec = f["diffuse"];
+  for (int k = 0; k < lobes; ++k) spec += "+" + f["lobe"].get<std::string>();
+  return spec;
+}
+
+TEST(FitMaterials, SetIsWellFormed) {
+  const nlohmann::json& set = Set();
+  ASSERT_GE(set["materials"].size(), 6u);
+  for (const auto& m : set["materials"]) {
+    SCOPED_TRACE(m["name"].get<std::string>());
+    const Model model = Model::Parse(m["model"].get<std::string>());
+    // Every parameter the set names exists and is in range (ParseParams throws otherwise).
+    EXPECT_NO_THROW(ParseParams(model.Info(), ParamText(m["params"])));
+  }
+}
+
+class FitMaterial : public ::testing::TestWithParam<std::size_t> {};
+
+// Lambert plus 1, 2 and 3 GGX lobes under one metric per material (the
+// metrics in turn, so the set covers all five): nested, and at the
+// brute-force optimum.
+TEST_P(FitMaterial, NestsAndReachesTheBruteForceOptimum) {
+  const nlohmann::json& m = Set()["materials"][GetParam()];
+  const std::vector<std::string> metrics = Set()["fits"]["metrics"];
+  const std::string metric = metrics[GetParam() % metrics.size()];
+  SCOPED_TRACE(m["name"].get<std::string>() + ", " + metric);
+  const Dataset d = Tabulate(m, 8);
+  ASSERT_GT(d.samples.size(), 1000u);
+  EXPECT_GT(d.missing, 0u);
+  Options o;
+  o.metric = fit::ParseMetric(metric);
+  o.covariance = false;
+  o.num_threads = 1;
+  double previous = std::numeric_limits<double>::infinity();
+  for (int lobes = 1; lobes <= 3; ++lobes) {
+    const Model model = Model::Parse(SumOf(lobes));
+    SCOPED_TRACE(model.Info().name);
+    const Result r = fit::Fit(model, d, o);
+    EXPECT_TRUE(std::isfinite(r.cost));
+    EXPECT_LE(r.cost, previous * (1 + 1e-9)) << "a lobe more fits worse";
+    previous = r.cost;
+    // The brute force for one and two lobes (three would take minutes):
+    // 12 random starts a lobe, each solved to convergence on all samples.
+    if (lobes == 3) continue;
+    Options brute = o;
+    brute.random_starts = 12 * lobes;
+    brute.seed = 1000 + GetParam();
+    const Result b = fit::Fit(model, d, brute);
+    // The same optimum: within 1e-4 of the cost. Solves that stop in one
+    // flat valley (two near-equal lobes) differ by up to 1.4e-5 here; the
+    // basins the search missed before its split and Fresnel seeds were
+    // 7.6e-4 to 4.7e-3 above.
+    EXPECT_LE(r.cost, b.cost * (1 + 1e-4)) << "the brute-force search found a lower optimum: " << b.cost
+                                           << " below " << r.cost << " at " << FormatParams(model.Info(), b.params);
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(Set, FitMaterial, ::testing::Range<std::size_t>(0, Set()["materials"].size()),
+                         [](const ::testing::TestParamInfo<std::size_t>& p) {
+                           return Set()["materials"][p.param]["name"].get<std::string>();
+                         });
+
+}  // namespace
+}  // namespace brdfkit
