@@ -163,6 +163,23 @@ def test_fit_fix_tie_bounds_as_the_cli(tmp):
         brdfkit.fit("lambert", wi, wo, f, fix={"albedo": 0.2})
 
 
+def test_fit_random_starts_as_the_cli(tmp):
+    truth = brdfkit.Model("lambert+ggx", {"lambert.albedo": (0.2, 0.3, 0.4), "ggx.alpha": 0.12,
+                                          "ggx.f0": (0.9, 0.7, 0.5), "ggx.weight": 1})
+    wi, wo = unit_rows(800, seed=31, min_z=0.1), unit_rows(800, seed=32, min_z=0.1)
+    brdfkit.write(tmp / "data.csv", {"wi": wi, "wo": wo, "f": truth.eval(wi, wo)})
+    py = brdfkit.fit("lambert+ggx", tmp / "data.csv", random_starts=5, seed=3, threads=1, covariance=False)
+    ref = cli_json("fit", "--data", tmp / "data.csv", "--model", "lambert+ggx", "--threads", 1, "--json",
+                   "--no-covariance", "--random-starts", 5, "--seed", 3)
+    assert py["params"] == ref["params"] and py["starts"] == 5
+    assert {o["origin"] for o in py["local_optima"]} == {"random start"}
+    # Noiseless data: the random starts reach the truth's zero cost.
+    assert py["cost"] < 1e-20
+    np.testing.assert_allclose(py["params"]["ggx.alpha"], 0.12, rtol=1e-6)
+    with pytest.raises(ValueError, match=r"random_starts must be in \[0, 100000\]"):
+        brdfkit.fit("lambert+ggx", wi, wo, truth.eval(wi, wo), random_starts=-1)
+
+
 def test_files_round_trip_and_bad_files(tmp):
     wi, wo = unit_rows(50, seed=3), unit_rows(50, seed=4)
     f = brdfkit.Model("ggx").eval(wi, wo)
