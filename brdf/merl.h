@@ -297,6 +297,16 @@ class MerlTable {
     f.Commit();
   }
 
+  // Whether both directions of a bin centre are above the horizon. Two
+  // centres lie on it (theta_h + theta_d = 90 degrees at phi_d = 0: bins
+  // (30, 80, 0) and (60, 50, 0)), where rounding leaves a cosine of about
+  // +-1e-16 and a model dividing by the cosine (Kajiya's) gives 1e19; every
+  // other centre's cosines are above 1e-3.
+  static bool AboveHorizon(const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) {
+    constexpr double kOnHorizon = 1e-12;
+    return wi.z() > kOnHorizon && wo.z() > kOnHorizon;
+  }
+
   // Tabulates f(wi, wo) at the bin centres (directions with phi_h = 0). f
   // returns an RGB triple (anything with operator[]) or one number for all
   // channels. Cells whose centre puts a direction at or below the horizon
@@ -337,7 +347,7 @@ class MerlTable {
           const Eigen::Vector3d wi(ct * dx + st * dz, dy, -st * dx + ct * dz);
           const Eigen::Vector3d wo(-ct * dx + st * dz, -dy, st * dx + ct * dz);
           const std::size_t n = Index(i, j, k);
-          if (!(wi.z() > 0 && wo.z() > 0)) {
+          if (!AboveHorizon(wi, wo)) {
             for (int c = 0; c < 3; ++c) values[c * kCells + n] = -1.0;
             continue;
           }

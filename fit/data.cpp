@@ -63,7 +63,7 @@ Dataset FromMerl(const MerlTable& table, const std::string& source) {
         }
         MerlTable::BinDirections(i, j, k, s.wi, s.wo);
         // A bin centre at or below the horizon is no reflectance sample.
-        if (missing || !(s.wi.z() > 0 && s.wo.z() > 0)) {
+        if (missing || !MerlTable::AboveHorizon(s.wi, s.wo)) {
           ++d.missing;
           continue;
         }
