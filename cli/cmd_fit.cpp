@@ -1,4 +1,5 @@
 // brdfkit fit: least-squares fit of a model to tabulated reflectance.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -255,12 +256,6 @@ void RegisterFit(CLI::App& app) {
       throw UsageError(e.what());
     }
     ParseLoss(loss, o);
-    if (max_theta != -1 && !(max_theta > 0 && max_theta <= 90))
-      throw UsageError("--max-theta-deg must be in (0, 90]");
-    if (max_iter < 1) throw UsageError("--max-iterations must be at least 1");
-    if (starts < 1) throw UsageError("--starts must be at least 1");
-    if (random_starts < 0 || random_starts > fit::kMaxRandomStarts)
-      throw UsageError("--random-starts must be in [0, " + std::to_string(fit::kMaxRandomStarts) + "]");
     o.random_starts = random_starts;
     o.seed = seed;
     o.max_theta_deg = max_theta;
@@ -269,6 +264,15 @@ void RegisterFit(CLI::App& app) {
     o.starts_per_param = starts;
     o.covariance = !no_cov;
     o.use_sigma = !ignore_sigma;
+    try {
+      fit::CheckOptions(o, [](const std::string& field) {
+        std::string flag = field == "starts_per_param" ? "starts" : field;
+        std::replace(flag.begin(), flag.end(), '_', '-');
+        return "--" + flag;
+      });
+    } catch (const std::invalid_argument& e) {
+      throw UsageError(e.what());
+    }
 
     Model m = Model::Parse("lambert");
     if (model.rfind("fit:", 0) == 0) {

@@ -445,6 +445,8 @@ TaskOutcome FitTask::Run(const TaskSpec& spec, const RunContext& ctx) const {
   opt.loss = fit::ParseLoss(t.loss);
   opt.max_iterations = t.max_iterations;
   opt.starts_per_param = t.starts;
+  opt.random_starts = t.random_starts;
+  opt.seed = t.seed;
   if (!t.init.empty()) opt.initial = ParseParams(model.Info(), t.init);
   opt.fix = t.fix;
   opt.tie = t.tie;

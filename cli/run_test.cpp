@@ -167,6 +167,26 @@ TEST(Run, TheFitInTheSceneRecoversTheSynthesisedMaterial) {
   ASSERT_EQ(e.code, 0) << e.out;
 }
 
+// A scene's fit task takes the random starts and their seed: the optima
+// listed are theirs and the synthesised material is recovered.
+TEST(Run, ASceneFitTakesRandomStarts) {
+  const fs::path d = FreshDir("fit_random");
+  json scene = SmallScene({"fit_a"});
+  for (json& t : scene["tasks"])
+    if (t["name"] == "fit_a") {
+      t["random_starts"] = 3;
+      t["seed"] = 7;
+    }
+  WriteText(d / "scene.json", scene.dump());
+  const CliRun r = Brdfkit("run " + (d / "scene.json").string() + " --out " + (d / "out").string() + " --quiet");
+  ASSERT_EQ(r.code, 0) << r.out;
+  const json fit = json::parse(ReadText(d / "out" / "fit_a" / "fit.json"));
+  EXPECT_EQ(fit.at("starts").get<int>(), 3);
+  for (const json& o : fit.at("local_optima")) EXPECT_EQ(o.at("origin"), "random start");
+  EXPECT_NEAR(fit.at("params").at("ggx.alpha").get<double>(), 0.2, 1e-6);
+  EXPECT_NEAR(fit.at("params").at("lambert.albedo")[2].get<double>(), 0.4, 1e-6);
+}
+
 // A measured material from a MERL file (written by the synthesiser from a
 // known lambert+ggx on every 3rd/3rd/6th bin; the rest are missing, -1) is
 // fitted back; the check task defined beside it is not requested.

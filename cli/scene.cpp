@@ -476,6 +476,8 @@ void FitTask::Parse(SceneReader& r, const Scene& s) {
   }
   t.max_iterations = static_cast<int>(r.Integer("max_iterations", t.max_iterations, 1, 100000));
   t.starts = static_cast<int>(r.Integer("starts", t.starts, 1, 100));
+  t.random_starts = static_cast<int>(r.Integer("random_starts", t.random_starts, 0, fit::kMaxRandomStarts));
+  t.seed = static_cast<std::uint64_t>(r.Integer("seed", 1, 0, INT64_MAX));
 }
 
 void ConvergenceTask::Parse(SceneReader& r, const Scene& /*scene*/) {

@@ -113,6 +113,8 @@ struct FitTask : TaskTypeBase {
   std::string instrument;  // fit through its apertures (optional)
   int max_iterations = 200;
   int starts = 5;
+  int random_starts = 0;    // fit::Options::random_starts
+  std::uint64_t seed = 1;   // of the random starts
 
   void Parse(SceneReader& r, const Scene& s);
   std::vector<std::string> Materials() const { return Listed(data_material); }

@@ -186,7 +186,21 @@ Result Fit(const Model& model, const Dataset& data, const Options& options) {
   return res;
 }
 
+void CheckOptions(const Options& o, const std::function<std::string(const std::string&)>& spell) {
+  const auto fail = [&](const std::string& field, const std::string& what) {
+    throw std::invalid_argument((spell ? spell(field) : field) + " must be " + what);
+  };
+  if (o.max_theta_deg != -1 && !(o.max_theta_deg > 0 && o.max_theta_deg <= 90)) fail("max_theta_deg", "in (0, 90]");
+  if (o.max_iterations < 1) fail("max_iterations", "at least 1");
+  if (o.starts_per_param < 1) fail("starts_per_param", "at least 1");
+  if (o.start_subset < 1) fail("start_subset", "at least 1");
+  if (o.start_iterations < 1) fail("start_iterations", "at least 1");
+  if (o.random_starts < 0 || o.random_starts > kMaxRandomStarts)
+    fail("random_starts", "in [0, " + std::to_string(kMaxRandomStarts) + "]");
+}
+
 Result Fit(const Evaluators& model, const Dataset& data, const Options& options) {
+  CheckOptions(options);
   // More worker threads than the machine offers only cost memory and
   // start-up (a count such as 100000 would exhaust the process's thread limit).
   Options o = options;

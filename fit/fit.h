@@ -176,6 +176,13 @@ struct Options {
 // with nothing left to fit.
 void CheckConstraints(const ModelInfo& info, const Options& options);
 
+// Checks the numeric options (max_theta_deg, max_iterations,
+// starts_per_param, start_subset, start_iterations, random_starts); throws
+// std::invalid_argument "<option> must be ...", the option spelled by
+// `spell` (a front end's name for the Options field; default the field's
+// own). Fit calls it.
+void CheckOptions(const Options& options, const std::function<std::string(const std::string& field)>& spell = {});
+
 // One accepted iteration. The multi-start solves (start = 1, 2, ...) run on
 // their subset of the samples and report its RMSE; start = 0 is the final
 // solve on all samples.

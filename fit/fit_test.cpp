@@ -454,6 +454,31 @@ TEST(Fit, RandomStartsReachTheOptimumAndRepeat) {
   ExpectRecovered(Fit(m, d, o), truth, 1e-6);
 }
 
+// The numeric options are the library's to check: a C++ caller gets the
+// same message as the front ends, under the Options field's name.
+TEST(Fit, NumericOptionsOutOfRangeAreRejected) {
+  const Model m = Model::Parse("ggx");
+  const Dataset d = Synthesise(m, ParseParams(m.Info(), "alpha=0.15,f0=0.9:0.7:0.5"), 50, 5);
+  const auto message = [&](const std::function<void(Options&)>& set) {
+    Options o;
+    set(o);
+    try {
+      Fit(m, d, o);
+    } catch (const std::invalid_argument& e) {
+      return std::string(e.what());
+    }
+    return std::string("accepted");
+  };
+  EXPECT_EQ(message([](Options& o) { o.random_starts = -1; }), "random_starts must be in [0, 100000]");
+  EXPECT_EQ(message([](Options& o) { o.random_starts = kMaxRandomStarts + 1; }), "random_starts must be in [0, 100000]");
+  EXPECT_EQ(message([](Options& o) { o.max_iterations = 0; }), "max_iterations must be at least 1");
+  EXPECT_EQ(message([](Options& o) { o.starts_per_param = 0; }), "starts_per_param must be at least 1");
+  EXPECT_EQ(message([](Options& o) { o.start_iterations = 0; }), "start_iterations must be at least 1");
+  EXPECT_EQ(message([](Options& o) { o.start_subset = 0; }), "start_subset must be at least 1");
+  EXPECT_EQ(message([](Options& o) { o.max_theta_deg = 91; }), "max_theta_deg must be in (0, 90]");
+  EXPECT_EQ(message([](Options& o) { o.max_theta_deg = 0; }), "max_theta_deg must be in (0, 90]");
+}
+
 // An optimum on a bound (a GGX material fitted by lambert+ggx: little or no
 // diffuse albedo): the solution meets the optimality conditions of the
 // bounded problem, whichever way the final solve got there (bounds held as

@@ -207,13 +207,7 @@ py::dict Fit(const py::object& model, const py::object& data, const py::object& 
     throw ArgumentError(e.what());
   }
   cli::ParseFitLoss(loss, o);
-  if (max_theta_deg != -1 && !(max_theta_deg > 0 && max_theta_deg <= 90))
-    throw ArgumentError("max_theta_deg must be in (0, 90]");
   if (threads < 1) throw ArgumentError("threads must be at least 1");
-  if (max_iterations < 1) throw ArgumentError("max_iterations must be at least 1");
-  if (starts < 1) throw ArgumentError("starts must be at least 1");
-  if (random_starts < 0 || random_starts > fit::kMaxRandomStarts)
-    throw ArgumentError("random_starts must be in [0, " + std::to_string(fit::kMaxRandomStarts) + "]");
   o.random_starts = random_starts;
   o.seed = seed;
   o.max_theta_deg = max_theta_deg;
@@ -222,6 +216,11 @@ py::dict Fit(const py::object& model, const py::object& data, const py::object& 
   o.starts_per_param = starts;
   o.covariance = covariance;
   o.use_sigma = use_sigma;
+  try {
+    fit::CheckOptions(o, [](const std::string& field) { return field == "starts_per_param" ? "starts" : field; });
+  } catch (const std::invalid_argument& e) {
+    throw ArgumentError(e.what());
+  }
   Model mm = Model::Parse("lambert");
   std::shared_ptr<PythonModel> python;
   if (py::isinstance<PythonModel>(model)) {
