@@ -100,24 +100,24 @@ std::vector<double> Engine::ToInternal(const std::vector<double>& p) const {
 // the plain metric.
 template <class T>
 void Engine::SampleResiduals(const Bxdf<T>& b, const T* p, const Prepared& d, std::size_t q, bool fit, T* out) const {
-  ResidualsOf(Prediction(b, p, d, q), d, q, fit, out);
+  const Eigen::Vector3d wi = d.Wi(q), wo = d.Wo(q);
+  ResidualsOf(Prediction(b, p, wi, wo), d, q, wi.z(), fit, out);
 }
 
 template <class T>
-void Engine::ResidualsOf(const Rgb<T>& f, const Prepared& d, std::size_t q, bool fit, T* out) const {
+void Engine::ResidualsOf(const Rgb<T>& f, const Prepared& d, std::size_t q, double cos_i, bool fit, T* out) const {
   for (int c = 0; c < 3; ++c) {
-    const T g = MetricTransform(metric_, f[c], d.cos_i[q]);
+    const T g = MetricTransform(metric_, f[c], cos_i);
     if (fit) out[c] = Robust(loss_, loss_scale_, T(T(d.w_fit[q][c]) * (g - T(d.target[q][c]))));
-    else out[c] = T(d.w_metric[q][c]) * (g - T(d.target[q][c]));
+    else out[c] = T(d.WMetric(q)[c]) * (g - T(d.target[q][c]));
   }
 }
 
-// The model's value for sample q: f_r, or f_r through the instrument's apertures.
+// The model's value for the directions wi, wo: f_r, or f_r through the instrument's apertures.
 template <class T>
-Rgb<T> Engine::Prediction(const Bxdf<T>& b, const T* p, const Prepared& d, std::size_t q) const {
-  if (quad_) return synth::MeasuredBrdf(b, p, d.wi[q], d.wo[q], *quad_);
+Rgb<T> Engine::Prediction(const Bxdf<T>& b, const T* p, const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) const {
+  if (quad_) return synth::MeasuredBrdf(b, p, wi, wo, *quad_);
   if (ladder_) {
-    const Eigen::Vector3d &wi = d.wi[q], &wo = d.wo[q];
     if constexpr (std::is_same_v<T, double>) {
       return synth::MeasureAdaptive(b, p, wi, wi, wo, wo, *ladder_, tolerance_).f;
     } else {
@@ -129,12 +129,23 @@ Rgb<T> Engine::Prediction(const Bxdf<T>& b, const T* p, const Prepared& d, std::
       return synth::MeasuredAtLevels(b, p, wi, wo, *ladder_, m.source_level, m.detector_level);
     }
   }
-  const Vec3<T> wi = d.wi[q].template cast<T>(), wo = d.wo[q].template cast<T>();
-  return b.Eval(p, wi, wo);
+  return b.Eval(p, Vec3<T>(wi.template cast<T>()), Vec3<T>(wo.template cast<T>()));
 }
 
+namespace {
+// The unit directions of samples [begin, end) as packed rows of 3 (EvalBatch's input).
+void Directions(const Prepared& d, std::size_t begin, std::size_t end, std::vector<double>& wi, std::vector<double>& wo) {
+  wi.resize(3 * (end - begin));
+  wo.resize(3 * (end - begin));
+  for (std::size_t q = begin; q < end; ++q) {
+    Eigen::Map<Eigen::Vector3d>(wi.data() + 3 * (q - begin)) = d.Wi(q);
+    Eigen::Map<Eigen::Vector3d>(wo.data() + 3 * (q - begin)) = d.Wo(q);
+  }
+}
+}  // namespace
+
 Eigen::Array3d Engine::Predict(const std::vector<double>& p, const Prepared& d, std::size_t q) const {
-  return Prediction(*b_, p.data(), d, q);
+  return Prediction(*b_, p.data(), d.Wi(q), d.Wo(q));
 }
 
 void Engine::PredictRange(const std::vector<double>& p, const Prepared& d, std::size_t begin, std::size_t end,
@@ -142,7 +153,9 @@ void Engine::PredictRange(const std::vector<double>& p, const Prepared& d, std::
   if (quad_ || ladder_) {
     for (std::size_t q = begin; q < end; ++q) Eigen::Map<Eigen::Array3d>(out + 3 * (q - begin)) = Predict(p, d, q);
   } else if (end > begin) {
-    b_->EvalBatch(p.data(), d.wi[begin].data(), 3, d.wo[begin].data(), 3, end - begin, out);
+    std::vector<double> wi, wo;
+    Directions(d, begin, end, wi, wo);
+    b_->EvalBatch(p.data(), wi.data(), 3, wo.data(), 3, end - begin, out);
   }
 }
 
@@ -154,11 +167,12 @@ bool Engine::EvalDouble(const double* u, const Prepared& d, std::size_t begin, s
     for (std::size_t q = begin; q < end; ++q) SampleResiduals(*b_, p.data(), d, q, fit, r + 3 * (q - begin));
   } else if (end > begin) {
     // f_r of the whole range in one EvalBatch call (the model's vectorised kernel).
-    static_assert(sizeof(Eigen::Vector3d) == 3 * sizeof(double), "directions are packed rows of 3");
-    std::vector<double> f(3 * (end - begin));
-    b_->EvalBatch(p.data(), d.wi[begin].data(), 3, d.wo[begin].data(), 3, end - begin, f.data());
+    std::vector<double> wi, wo, f(3 * (end - begin));
+    Directions(d, begin, end, wi, wo);
+    b_->EvalBatch(p.data(), wi.data(), 3, wo.data(), 3, end - begin, f.data());
     for (std::size_t q = begin; q < end; ++q)
-      ResidualsOf(Rgb<double>(Rgb<double>::Map(f.data() + 3 * (q - begin))), d, q, fit, r + 3 * (q - begin));
+      ResidualsOf(Rgb<double>(Rgb<double>::Map(f.data() + 3 * (q - begin))), d, q, wi[3 * (q - begin) + 2], fit,
+                  r + 3 * (q - begin));
   }
   for (std::size_t k = 0; k < 3 * (end - begin); ++k)
     if (!std::isfinite(r[k])) return false;

@@ -46,15 +46,24 @@ std::string Expected(const std::vector<E>& all, NameOf name_of) {
 // ---------------------------------------------------------------------------
 // Samples and metrics (metrics.cpp).
 
-// Samples prepared for one metric: struct of arrays.
+// Samples prepared for one metric: rows of a dataset, which must outlive
+// it (its directions and values are read there, not copied), and for each
+// row the metric's target and weights.
 struct Prepared {
-  std::vector<Eigen::Vector3d> wi, wo;
-  std::vector<double> cos_i;
-  std::vector<Eigen::Array3d> reference;  // the data's f_r
+  const Dataset* data = nullptr;
+  std::vector<std::size_t> index;        // rows of data->samples
   std::vector<Eigen::Array3d> target;    // G(reference)
   std::vector<Eigen::Array3d> w_fit;     // weights of the fitted residuals
-  std::vector<Eigen::Array3d> w_metric;  // weights of the metric (no sigma)
-  std::size_t size() const { return wi.size(); }
+  std::vector<Eigen::Array3d> w_metric;  // weights of the metric (no sigma); empty: those of w_fit
+  // Every direction of the rows has unit length to rounding (the readers'
+  // do); else each is normalised where it is read.
+  bool unit = true;
+  std::size_t size() const { return index.size(); }
+  const Sample& Row(std::size_t q) const { return data->samples[index[q]]; }
+  Eigen::Vector3d Wi(std::size_t q) const { return unit ? Row(q).wi : Row(q).wi.normalized(); }
+  Eigen::Vector3d Wo(std::size_t q) const { return unit ? Row(q).wo : Row(q).wo.normalized(); }
+  const Eigen::Array3d& Reference(std::size_t q) const { return Row(q).f; }  // the data's f_r
+  const Eigen::Array3d& WMetric(std::size_t q) const { return w_metric.empty() ? w_fit[q] : w_metric[q]; }
 };
 
 struct Selection {
@@ -65,6 +74,8 @@ struct Selection {
 // The samples within the options' angle cut.
 Selection Select(const Dataset& data, const Options& o);
 Prepared Prepare(const Dataset& data, const std::vector<std::size_t>& index, const Options& o);
+// The rows of p at positions `rows`, with p's targets and weights.
+Prepared Rows(const Prepared& p, const std::vector<std::size_t>& rows);
 
 // Below this, cbrt is continued by its tangent: the derivative of cbrt is
 // infinite at 0 and Jets must stay finite.
@@ -197,9 +208,9 @@ class Engine {
   template <class T>
   void SampleResiduals(const Bxdf<T>& b, const T* p, const Prepared& d, std::size_t q, bool fit, T* out) const;
   template <class T>
-  void ResidualsOf(const Rgb<T>& f, const Prepared& d, std::size_t q, bool fit, T* out) const;
+  void ResidualsOf(const Rgb<T>& f, const Prepared& d, std::size_t q, double cos_i, bool fit, T* out) const;
   template <class T>
-  Rgb<T> Prediction(const Bxdf<T>& b, const T* p, const Prepared& d, std::size_t q) const;
+  Rgb<T> Prediction(const Bxdf<T>& b, const T* p, const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) const;
   template <int N>
   bool EvalJet(const Bxdf<Jet<N>>& b, const double* u, const Prepared& d, std::size_t begin, std::size_t end,
                double* r, double* jac) const;

@@ -97,13 +97,16 @@ Selection Select(const Dataset& data, const Options& o) {
 Prepared Prepare(const Dataset& data, const std::vector<std::size_t>& index, const Options& o) {
   Prepared p;
   const std::size_t n = index.size();
-  p.wi.resize(n);
-  p.wo.resize(n);
-  p.cos_i.resize(n);
+  const bool sigma = data.has_sigma && o.use_sigma;
+  p.data = &data;
+  p.index = index;
+  // Unit to a few ulp (a direction from angles is): read as they are.
+  const auto unit = [](const Eigen::Vector3d& w) { return std::abs(w.squaredNorm() - 1) <= 1e-14; };
+  p.unit = std::all_of(index.begin(), index.end(),
+                       [&](std::size_t k) { return unit(data.samples[k].wi) && unit(data.samples[k].wo); });
   p.target.resize(n);
-  p.reference.resize(n);
   p.w_fit.resize(n);
-  p.w_metric.resize(n);
+  if (sigma) p.w_metric.resize(n);
   // Relative metric: a floor keeps near-zero reference values from
   // dominating (and from dividing by zero).
   Eigen::Array3d floor = Eigen::Array3d::Zero();
@@ -113,26 +116,34 @@ Prepared Prepare(const Dataset& data, const std::vector<std::size_t>& index, con
     mean /= std::max<std::size_t>(n, 1);
     floor = (1e-3 * mean).max(1e-300);
   }
-  const bool sigma = data.has_sigma && o.use_sigma;
   for (std::size_t q = 0; q < n; ++q) {
     const Sample& s = data.samples[index[q]];
-    p.wi[q] = s.wi.normalized();
-    p.wo[q] = s.wo.normalized();
-    const double c = p.wi[q].z();
-    p.cos_i[q] = c;
-    p.reference[q] = s.f;
+    const double c = p.Wi(q).z();
     for (int ch = 0; ch < 3; ++ch) {
       const double g = s.f[ch];
       p.target[q][ch] = MetricTransform(o.metric, g, c);
       double w = 1;
       if (o.metric == Metric::kRelative) w = 1.0 / std::max(std::abs(g), floor[ch]);
       if (o.metric == Metric::kCosine) w = c;
-      p.w_metric[q][ch] = w;
+      if (sigma) p.w_metric[q][ch] = w;
       // Standard deviation of the metric residual, to first order in sigma.
       p.w_fit[q][ch] = sigma ? 1.0 / (std::abs(MetricSlope(o.metric, g, c)) * s.sigma[ch]) : w;
     }
   }
   return p;
+}
+
+Prepared Rows(const Prepared& p, const std::vector<std::size_t>& rows) {
+  Prepared out;
+  out.data = p.data;
+  out.unit = p.unit;
+  for (std::size_t q : rows) {
+    out.index.push_back(p.index[q]);
+    out.target.push_back(p.target[q]);
+    out.w_fit.push_back(p.w_fit[q]);
+    if (!p.w_metric.empty()) out.w_metric.push_back(p.w_metric[q]);
+  }
+  return out;
 }
 
 // Root mean square of the plain metric residuals.
@@ -190,35 +201,40 @@ double Median(std::vector<double> v) {
 // over all samples and by theta_h band (Result::relative_error).
 void RelativeErrors(const Engine& e, const Prepared& d, const std::vector<double>& p, Result& res) {
   const std::size_t n = d.size();
-  std::vector<Eigen::Array3d> pred(n);
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 256), [&](const tbb::blocked_range<std::size_t>& r) {
-    e.PredictRange(p, d, r.begin(), r.end(), pred[r.begin()].data());
-  });
   Eigen::Array3d mean = Eigen::Array3d::Zero();
-  for (const Eigen::Array3d& g : d.reference) mean += g.abs();
+  for (std::size_t q = 0; q < n; ++q) mean += d.Reference(q).abs();
   // The floor keeps reference values near zero from dominating (as the relative metric).
   const Eigen::Array3d floor = (1e-3 * mean / double(std::max<std::size_t>(n, 1))).max(1e-300);
   constexpr std::size_t kBands = std::size(kThetaHBandEdgesDeg) - 1;
-  std::vector<double> all;
-  std::vector<std::vector<double>> bands(kBands);
-  all.reserve(3 * n);
-  for (std::size_t q = 0; q < n; ++q) {
-    const Eigen::Vector3d h = (d.wi[q] + d.wo[q]).normalized();
-    const double theta_h = std::acos(std::clamp(h.z(), -1.0, 1.0)) * 180 / kPi;
-    std::size_t b = 0;
-    while (b + 1 < kBands && theta_h >= kThetaHBandEdgesDeg[b + 1]) ++b;
-    for (int c = 0; c < 3; ++c) {
-      const double g = d.reference[q][c];
-      const double rel = std::abs(pred[q][c] - g) / std::max(std::abs(g), floor[c]);
-      all.push_back(rel);
-      bands[b].push_back(rel);
+  // Each sample's three errors and its theta_h band; the bands' errors are
+  // gathered one band at a time (the errors of a MERL table are 26 MB).
+  std::vector<double> all(3 * n);
+  std::vector<std::uint8_t> band(n);
+  static_assert(kBands <= 256, "a band number fits a byte");
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 256), [&](const tbb::blocked_range<std::size_t>& r) {
+    std::vector<double> pred(3 * r.size());
+    e.PredictRange(p, d, r.begin(), r.end(), pred.data());
+    for (std::size_t q = r.begin(); q < r.end(); ++q) {
+      const Eigen::Vector3d h = (d.Wi(q) + d.Wo(q)).normalized();
+      const double theta_h = std::acos(std::clamp(h.z(), -1.0, 1.0)) * 180 / kPi;
+      std::size_t b = 0;
+      while (b + 1 < kBands && theta_h >= kThetaHBandEdgesDeg[b + 1]) ++b;
+      band[q] = std::uint8_t(b);
+      for (int c = 0; c < 3; ++c) {
+        const double g = d.Reference(q)[c];
+        all[3 * q + std::size_t(c)] = std::abs(pred[3 * (q - r.begin()) + std::size_t(c)] - g) / std::max(std::abs(g), floor[c]);
+      }
     }
+  });
+  res.relative_error_bands.clear();
+  for (std::size_t b = 0; b < kBands; ++b) {
+    std::vector<double> in;
+    for (std::size_t q = 0; q < n; ++q)
+      if (band[q] == b) in.insert(in.end(), all.begin() + std::ptrdiff_t(3 * q), all.begin() + std::ptrdiff_t(3 * q + 3));
+    if (!in.empty())
+      res.relative_error_bands.push_back({kThetaHBandEdgesDeg[b], kThetaHBandEdgesDeg[b + 1], StatsOf(std::move(in))});
   }
   res.relative_error = StatsOf(std::move(all));
-  res.relative_error_bands.clear();
-  for (std::size_t b = 0; b < kBands; ++b)
-    if (!bands[b].empty())
-      res.relative_error_bands.push_back({kThetaHBandEdgesDeg[b], kThetaHBandEdgesDeg[b + 1], StatsOf(std::move(bands[b]))});
 }
 
 double LossScale(const FitState& s, const std::vector<double>& u) {

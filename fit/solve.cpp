@@ -233,13 +233,15 @@ ceres::Solver::Options SolverOptions(const Options& o, LinearSolver solver, int 
 }
 
 struct ResidualBlocks::Impl {
-  Impl(const Model& model, const Dataset& data, const Options& o, double loss_scale)
-      : engine(ModelEvaluators(model), o, loss_scale, AllFree(model.Info())), prepared(Prepare(data, Select(data, o).index, o)) {
+  Impl(const Model& model, const Dataset& d, const Options& o, double loss_scale)
+      : engine(ModelEvaluators(model), o, loss_scale, AllFree(model.Info())), data(d),
+        prepared(Prepare(data, Select(data, o).index, o)) {
     const std::size_t chunk = std::max<std::size_t>(1, o.chunk);
     for (std::size_t b = 0; b < prepared.size(); b += chunk)
       blocks.push_back(std::make_unique<ChunkCost>(&engine, &prepared, b, std::min(prepared.size(), b + chunk)));
   }
   Engine engine;
+  Dataset data;  // a copy: the blocks read it
   Prepared prepared;
   std::vector<std::unique_ptr<ChunkCost>> blocks;
 };
