@@ -169,7 +169,7 @@ Result FitInArena(const Evaluators& model, const Dataset& data, const Options& o
     if (std::optional<std::vector<double>> again = start.after_final(res.params)) {
       u = *again;
       res.init_seconds = elapsed();
-      jtj = FinalSolve(s, engine, u);
+      jtj = SolveWithActiveSet(s, model, loss_scale, engine, u);
     }
   const double residual_variance = ResidualVariance(s);
   Summarise(s, engine, u, residual_variance);
