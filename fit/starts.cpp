@@ -665,10 +665,11 @@ Start RandomSearch(const FitState& s) {
   if (solved.empty()) NoFiniteStart(s);
   std::stable_sort(solved.begin(), solved.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
   std::vector<std::vector<double>> distinct;
-  for (const auto& [cost, u] : solved) {
+  for (const auto& found : solved) {
+    const std::vector<double>& u = found.second;
     if (std::any_of(distinct.begin(), distinct.end(), [&](const auto& v) { return SameSolution(u, v); })) continue;
     distinct.push_back(u);
-    s.res.local_optima.push_back({cost, e.ToUser(u), "random start"});
+    s.res.local_optima.push_back({found.first, e.ToUser(u), "random start"});
   }
   Keep(s, s.res.local_optima.front().params);
   return {solved.front().second, {}};
