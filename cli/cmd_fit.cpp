@@ -5,6 +5,8 @@
 #include <fstream>
 #include <iostream>
 
+#include <tbb/task_arena.h>
+
 #include "brdf/atomic_file.h"
 #include "cli/common.h"
 #include "cli/tasks.h"
@@ -303,7 +305,9 @@ void RegisterFit(CLI::App& app) {
       o.instrument = &inst;
       o.aperture_order = aperture_order;
     }
-    const fit::Dataset ds = fit::LoadDataset(data);
+    // Readers that convert in parallel (MERL) use the fit's threads.
+    tbb::task_arena load_arena(o.num_threads);
+    const fit::Dataset ds = load_arena.execute([&] { return fit::LoadDataset(data); });
     if (ds.missing > 0)
       std::fprintf(stderr, "brdfkit: %zu missing sample(s) in '%s' skipped\n", ds.missing, data.c_str());
     const fit::Result r = fit::Fit(m, ds, o);

@@ -121,7 +121,10 @@ void Summarise(const FitState& s, const Engine& engine, const std::vector<double
     res.kept = 0;
   }
   res.chi2_reduced = s.sigma ? residual_variance : std::numeric_limits<double>::quiet_NaN();
-  res.rmse = Rmse(engine, s.full, u);
+  // Without sigma or a robust loss the cost is the metric's sum of squares
+  // / 2, so the RMSE needs no pass over the samples.
+  res.rmse = !s.sigma && s.o.loss == Loss::kNone ? std::sqrt(2 * res.cost / (3.0 * s.full.size()))
+                                                 : Rmse(engine, s.full, u);
   RelativeErrors(engine, s.full, res.params, res);
   const Dataset& data = s.data;
   if (!s.o.instrument && !data.apertures.empty())

@@ -165,6 +165,46 @@ TEST(Fit, ThreadCountChangesNothingButTheTime) {
   ExpectRecovered(runs[0], truth, 0.05);
 }
 
+// The reported RMSE is the root mean square of the metric residuals of the
+// fitted model, computed here from the definitions in fit.h, for fits whose
+// cost is those residuals' sum (no sigma, no robust loss) and one that is not.
+TEST(Fit, RmseIsTheRootMeanSquareOfTheMetricResiduals) {
+  const Model m = Model::Parse("lambert+ggx");
+  const std::vector<double> truth = ParseParams(m.Info(), "lambert.albedo=0.3:0.2:0.1,ggx.alpha=0.2,ggx.f0=0.9:0.7:0.5");
+  const Dataset d = Synthesise(m, truth, 800, 23, 0.05, 1e-3);
+  const auto b = m.Make<double>();
+  for (const Metric metric : {Metric::kL2, Metric::kRelative, Metric::kCosine, Metric::kLog, Metric::kCbrt})
+    for (const bool robust : {false, true}) {
+      Options o;
+      o.metric = metric;
+      o.use_sigma = false;
+      if (robust) o.loss = Loss::kCauchy;
+      const Result r = Fit(m, d, o);
+      Eigen::Array3d mean = Eigen::Array3d::Zero();
+      for (const Sample& x : d.samples) mean += x.f.abs();
+      const Eigen::Array3d floor = 1e-3 * mean / double(d.samples.size());
+      double sum = 0;
+      for (const Sample& x : d.samples) {
+        const Eigen::Array3d f = b->Eval(r.params.data(), x.wi, x.wo);
+        const double c = x.wi.z();
+        for (int ch = 0; ch < 3; ++ch) {
+          const double g = x.f[ch], fm = f[ch];
+          double e = 0;
+          switch (metric) {
+            case Metric::kL2: e = fm - g; break;
+            case Metric::kRelative: e = (fm - g) / std::max(std::abs(g), floor[ch]); break;
+            case Metric::kCosine: e = (fm - g) * c; break;
+            case Metric::kLog: e = std::log(1 + fm * c) - std::log(1 + g * c); break;
+            case Metric::kCbrt: e = std::cbrt(fm * c) - std::cbrt(g * c); break;
+          }
+          sum += e * e;
+        }
+      }
+      const double rmse = std::sqrt(sum / (3.0 * double(d.samples.size())));
+      EXPECT_NEAR(r.rmse, rmse, 1e-9 * rmse) << MetricName(metric) << (robust ? " cauchy" : "");
+    }
+}
+
 // Noisy data with known sigma: the estimates scatter about the truth as the
 // reported standard deviations say.
 TEST(Fit, ReportedUncertaintyMatchesSpread) {

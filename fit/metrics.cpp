@@ -82,6 +82,7 @@ double MaxThetaRad(const Options& o) {
 Selection Select(const Dataset& data, const Options& o) {
   Selection s;
   const double cos_max = std::cos(MaxThetaRad(o));
+  ReserveHuge(s.index, data.samples.size());
   // 1e-12 of slack keeps samples written at exactly the cut.
   for (std::size_t k = 0; k < data.samples.size(); ++k) {
     const Sample& x = data.samples[k];
@@ -99,14 +100,20 @@ Prepared Prepare(const Dataset& data, const std::vector<std::size_t>& index, con
   const std::size_t n = index.size();
   const bool sigma = data.has_sigma && o.use_sigma;
   p.data = &data;
+  ReserveHuge(p.index, index.size());
   p.index = index;
   // Unit to a few ulp (a direction from angles is): read as they are.
   const auto unit = [](const Eigen::Vector3d& w) { return std::abs(w.squaredNorm() - 1) <= 1e-14; };
   p.unit = std::all_of(index.begin(), index.end(),
                        [&](std::size_t k) { return unit(data.samples[k].wi) && unit(data.samples[k].wo); });
+  ReserveHuge(p.target, n);
+  ReserveHuge(p.w_fit, n);
   p.target.resize(n);
   p.w_fit.resize(n);
-  if (sigma) p.w_metric.resize(n);
+  if (sigma) {
+    ReserveHuge(p.w_metric, n);
+    p.w_metric.resize(n);
+  }
   // Relative metric: a floor keeps near-zero reference values from
   // dominating (and from dividing by zero).
   Eigen::Array3d floor = Eigen::Array3d::Zero();
@@ -116,20 +123,22 @@ Prepared Prepare(const Dataset& data, const std::vector<std::size_t>& index, con
     mean /= std::max<std::size_t>(n, 1);
     floor = (1e-3 * mean).max(1e-300);
   }
-  for (std::size_t q = 0; q < n; ++q) {
-    const Sample& s = data.samples[index[q]];
-    const double c = p.Wi(q).z();
-    for (int ch = 0; ch < 3; ++ch) {
-      const double g = s.f[ch];
-      p.target[q][ch] = MetricTransform(o.metric, g, c);
-      double w = 1;
-      if (o.metric == Metric::kRelative) w = 1.0 / std::max(std::abs(g), floor[ch]);
-      if (o.metric == Metric::kCosine) w = c;
-      if (sigma) p.w_metric[q][ch] = w;
-      // Standard deviation of the metric residual, to first order in sigma.
-      p.w_fit[q][ch] = sigma ? 1.0 / (std::abs(MetricSlope(o.metric, g, c)) * s.sigma[ch]) : w;
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096), [&](const tbb::blocked_range<std::size_t>& r) {
+    for (std::size_t q = r.begin(); q < r.end(); ++q) {
+      const Sample& s = data.samples[index[q]];
+      const double c = p.Wi(q).z();
+      for (int ch = 0; ch < 3; ++ch) {
+        const double g = s.f[ch];
+        p.target[q][ch] = MetricTransform(o.metric, g, c);
+        double w = 1;
+        if (o.metric == Metric::kRelative) w = 1.0 / std::max(std::abs(g), floor[ch]);
+        if (o.metric == Metric::kCosine) w = c;
+        if (sigma) p.w_metric[q][ch] = w;
+        // Standard deviation of the metric residual, to first order in sigma.
+        p.w_fit[q][ch] = sigma ? 1.0 / (std::abs(MetricSlope(o.metric, g, c)) * s.sigma[ch]) : w;
+      }
     }
-  }
+  });
   return p;
 }
 
@@ -137,6 +146,10 @@ Prepared Rows(const Prepared& p, const std::vector<std::size_t>& rows) {
   Prepared out;
   out.data = p.data;
   out.unit = p.unit;
+  out.index.reserve(rows.size());
+  out.target.reserve(rows.size());
+  out.w_fit.reserve(rows.size());
+  if (!p.w_metric.empty()) out.w_metric.reserve(rows.size());
   for (std::size_t q : rows) {
     out.index.push_back(p.index[q]);
     out.target.push_back(p.target[q]);

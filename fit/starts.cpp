@@ -352,7 +352,13 @@ class StartSearch {
       if (kid.on_all || !(kid.cost <= final_cost * (1 + kNestedMargin))) continue;
       const std::string name = ActiveSpec(mask);
       const Engine plain(evaluators_, plain_options_, 1.0, LevelLayout(mask));
-      if (kid.cost - kGainBound * GaussNewtonGain(plain, kid.p) > final_cost) continue;
+      if (kid.cost - kGainBound * GaussNewtonGain(plain, kid.p) > final_cost) {
+        // The pass the bound took, traced at the sub-sum's cost there.
+        const double rmse = s_.sigma ? Rmse(plain, full_, plain.ToInternal(kid.p))
+                                     : std::sqrt(2 * kid.cost / (3.0 * full_.size()));
+        s_.res.trace.push_back({0, s_.elapsed(), kid.cost, rmse, 0, name + ": bounded (all samples), not solved"});
+        continue;
+      }
       Candidate c = Solve(plain, full_, kid.p, o_.max_iterations, o_.function_tolerance, name + ": refine (all samples)");
       if (c.cost <= kid.cost) kid = {c.p, c.cost, kid.origin, true};
       kid.on_all = true;
