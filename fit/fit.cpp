@@ -43,37 +43,31 @@ Options WithoutLoss(const Options& o) {
 
 // The final solve on all samples from internal parameters u (updated in
 // place), which records the solution, its cost and the solver's report;
-// returns the normal matrix of Ceres' last Jacobian (at the point before its
-// last step, or at the solution).
-std::optional<NormalCache::Normal> FinalSolve(const FitState& s, const Engine& engine, std::vector<double>& u) {
+// returns the normal matrix (J^T J) at the solution or, where Ceres ended
+// the solve, at its last Jacobian (the point before its last step, or the
+// solution). With `from` (J^T J and J^T r at u: a solve that goes on after
+// held bounds are released) the secant end phase runs alone (SolveToEnd).
+std::optional<NormalCache::Normal> FinalSolve(const FitState& s, const Engine& engine, std::vector<double>& u,
+                                              const NormalCache::Normal* from) {
   Result& res = s.res;
   const Options& o = s.o;
-  ceres::Problem::Options po;
-  ceres::Problem problem(po);
-  NormalCache cache;
-  BuildProblem(problem, engine, s.full, s.chunk, u, &cache);
-  ceres::Solver::Options so = SolverOptions(o, o.solver, o.max_iterations);
   const std::size_t m = 3 * s.full.size();
   const bool weights_are_metric = !s.sigma && o.loss == Loss::kNone;
-  so.update_state_every_iteration = !weights_are_metric;
-  const double began = s.elapsed();
-  TraceCallback callback([&](const ceres::IterationSummary& it) {
-    if (it.iteration > 0 && !it.step_is_successful) return;
-    TracePoint tp;
-    tp.stage = "final";
-    tp.iteration = it.iteration;
-    tp.seconds = began + it.cumulative_time_in_seconds;
-    tp.cost = it.cost;
-    // Without sigma or a robust loss the cost is the metric's sum of squares / 2.
-    tp.rmse = weights_are_metric ? std::sqrt(2 * it.cost / m) : Rmse(engine, s.full, u);
-    res.trace.push_back(tp);
-    if (o.progress) o.progress(it.iteration, tp.seconds, it.cost);
-  });
-  so.callbacks.push_back(&callback);
-  ceres::Solver::Summary summary;
-  ceres::Solve(so, &problem, &summary);
+  const Solved solved = SolveToEnd(
+      engine, s.full, s.chunk, u, SolverOptions(o, o.solver, o.max_iterations), from,
+      [&](int iteration, double cost, const std::vector<double>& at) {
+        TracePoint tp;
+        tp.stage = "final";
+        tp.iteration = iteration;
+        tp.seconds = s.elapsed();
+        tp.cost = cost;
+        // Without sigma or a robust loss the cost is the metric's sum of squares / 2.
+        tp.rmse = weights_are_metric ? std::sqrt(2 * cost / m) : Rmse(engine, s.full, at);
+        res.trace.push_back(tp);
+        if (o.progress) o.progress(iteration, tp.seconds, cost);
+      });
+  const ceres::Solver::Summary& summary = solved.summary;
   res.solve_seconds = s.elapsed();
-
   res.params = engine.ToUser(u);
   res.cost = summary.final_cost;
   res.iterations = summary.num_successful_steps + summary.num_unsuccessful_steps;
@@ -82,7 +76,7 @@ std::optional<NormalCache::Normal> FinalSolve(const FitState& s, const Engine& e
   if (summary.termination_type == ceres::FAILURE)
     res.message = "the solver failed: " + summary.message;
   res.residuals = m;
-  return cache.Last();
+  return solved.normal;
 }
 
 // The final solve, holding the bounds that are active at its start
@@ -92,7 +86,9 @@ std::optional<NormalCache::Normal> SolveWithActiveSet(const FitState& s, const E
   std::optional<NormalCache::Normal> last;
   std::optional<NormalCache::Normal> held =
       HoldingBounds(model, s.o, loss_scale, engine, s.full, s.chunk, u,
-                    [&](const Engine& e, std::vector<double>& v) { last = FinalSolve(s, e, v); });
+                    [&](const Engine& e, std::vector<double>& v, const NormalCache::Normal* from) {
+                      last = FinalSolve(s, e, v, from);
+                    });
   return held ? held : last;
 }
 

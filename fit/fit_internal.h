@@ -282,6 +282,9 @@ T ChunkedSum(std::size_t n, std::size_t grain, T zero, F&& part) {
 
 // Root mean square of the plain metric residuals.
 double Rmse(const Engine& e, const Prepared& d, const std::vector<double>& u);
+// Cost (half the sum of squared fit residuals) of internal parameters u
+// over d; infinite where a residual is not finite.
+double CostOf(const Engine& e, const Prepared& d, const std::vector<double>& u);
 // Relative errors of the fitted model (user parameters p) against the data,
 // over all samples and by theta_h band (Result::relative_error).
 void RelativeErrors(const Engine& e, const Prepared& d, const std::vector<double>& p, Result& res);
@@ -298,32 +301,79 @@ double LossScale(const FitState& s, const std::vector<double>& u);
 void Bounds(const Layout& layout, const std::vector<bool>& log_mask, std::vector<double>& lo,
             std::vector<double>& hi);
 
+// Calls f at every iteration; with `stop`, ends the solve (successfully)
+// once stop returns true.
 class TraceCallback final : public ceres::IterationCallback {
  public:
-  TraceCallback(std::function<void(const ceres::IterationSummary&)> f) : f_(std::move(f)) {}
+  TraceCallback(std::function<void(const ceres::IterationSummary&)> f,
+                std::function<bool(const ceres::IterationSummary&)> stop = nullptr)
+      : f_(std::move(f)), stop_(std::move(stop)) {}
   ceres::CallbackReturnType operator()(const ceres::IterationSummary& s) override {
     f_(s);
-    return ceres::SOLVER_CONTINUE;
+    return stop_ && stop_(s) ? ceres::SOLVER_TERMINATE_SUCCESSFULLY : ceres::SOLVER_CONTINUE;
   }
 
  private:
   std::function<void(const ceres::IterationSummary&)> f_;
+  std::function<bool(const ceres::IterationSummary&)> stop_;
 };
 
-// J^T J of each residual block where its Jacobian was last evaluated, and
-// the parameters it was evaluated at (filled by the solver's threads, each
-// block its own slot).
+// J^T J and J^T r of each residual block where its Jacobian was last
+// evaluated, and the parameters it was evaluated at (filled by the solver's
+// threads, each block its own slot).
 struct NormalCache {
   std::vector<Eigen::MatrixXd> jtj;
+  std::vector<Eigen::VectorXd> jtr;
   std::vector<std::vector<double>> at;
-  // J^T J of the whole problem at the point where it was last evaluated.
+  // J^T J and J^T r of the whole problem at the point where it was last evaluated.
   struct Normal {
     Eigen::MatrixXd jtj;
     std::vector<double> at;
+    Eigen::VectorXd jtr;
   };
   // The sum over blocks, when every block was last evaluated at one point.
   std::optional<Normal> Last() const;
 };
+
+// The end of a Levenberg-Marquardt solve that converges linearly, as
+// Gauss-Newton does where the residuals stay large (it leaves out
+// S = sum r_k grad^2 r_k). From the last point (its J^T J, J^T r and cost)
+// and the one before it (`previous`, its J^T r), steps solve
+// (J^T J + A + lambda D) d = -J^T r, A the structured secant estimate of S
+// (Dennis, Gay and Welsch 1981, "An adaptive nonlinear least-squares
+// algorithm", NL2SOL, with its sizing), over the entries not held on a
+// bound (one the gradient or the step presses against), projected onto the
+// bounds and accepted when it lowers the cost; ends when a step lowers
+// the cost by at most ftol of it. Each accepted step costs one Jacobian
+// pass, a rejected one a cost pass; `accepted` is called with each new
+// point's iteration, cost and parameters.
+struct Tail {
+  std::vector<double> u;
+  double cost = 0;
+  NormalCache::Normal normal;  // J^T J and J^T r at u
+  int iterations = 0, accepted = 0;
+  bool converged = false;
+  double change = 0;  // the relative decrease of the cost at the last accepted step
+};
+Tail SecantTail(const Engine& e, const Prepared& d, std::size_t chunk, const NormalCache::Normal& last, double cost,
+                const std::optional<NormalCache::Normal>& previous, double ftol, int max_iterations,
+                const std::function<void(int, double, const std::vector<double>&)>& accepted);
+
+// Ceres' solve (options so) over d from internal parameters u (updated in
+// place) that hands over to SecantTail once its steps converge linearly:
+// the last decrease of the cost below 1e-4 of it, and the last two ratios
+// of successive decreases between 0.1 and 0.95. With `from` (J^T J and
+// J^T r at u) the end phase runs alone. trace(iteration, cost, u) is called
+// at every accepted point. The summary is Ceres', its cost, step counts,
+// termination and message updated where the end phase ran; `normal` holds
+// J^T J and J^T r at the solution, or at Ceres' last Jacobian.
+struct Solved {
+  ceres::Solver::Summary summary;
+  std::optional<NormalCache::Normal> normal;
+};
+Solved SolveToEnd(const Engine& e, const Prepared& d, std::size_t chunk, std::vector<double>& u,
+                  ceres::Solver::Options so, const NormalCache::Normal* from,
+                  const std::function<void(int, double, const std::vector<double>&)>& trace);
 
 // Builds the problem over `d` with internal parameters `u` (updated in
 // place); with `cache`, the blocks record their normal matrices there.
@@ -357,14 +407,15 @@ Start StartingPoint(const FitState& s);
 // solve(engine', v) runs on the others (within their bounds). At its
 // solution the gradient decides: when it would pull a held parameter
 // inside (dC/du = J^T r < 0 at a lower bound, > 0 at an upper one),
-// solve(engine, u) goes on with every parameter free within its bounds.
+// solve(engine, u, &normal) goes on with every parameter free within its
+// bounds, `normal` being J^T J and J^T r there (the other calls pass null).
 // While the bounds stay active, Ceres' bound-constrained steps (a projected
 // line search costing several Jacobian passes per iteration) are avoided.
 // Returns J^T J at the solution when that check computed it there.
+using HeldSolve = std::function<void(const Engine&, std::vector<double>&, const NormalCache::Normal*)>;
 std::optional<NormalCache::Normal> HoldingBounds(const Evaluators& model, const Options& o, double loss_scale,
                                                  const Engine& engine, const Prepared& d, std::size_t chunk,
-                                                 std::vector<double>& u,
-                                                 const std::function<void(const Engine&, std::vector<double>&)>& solve);
+                                                 std::vector<double>& u, const HeldSolve& solve);
 // J^T J and J^T r (the cost's gradient) of engine e over d at internal parameters u.
 void NormalEquations(const Engine& e, const Prepared& d, const std::vector<double>& u, std::size_t chunk,
                      Eigen::MatrixXd& jtj, Eigen::VectorXd& jtr);

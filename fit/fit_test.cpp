@@ -738,6 +738,50 @@ TEST(Fit, SumIsNeverWorseThanItsNestedSubSums) {
   }
 }
 
+// A fit whose residuals stay large (a material outside the model's family,
+// cube-root metric), where Gauss-Newton steps converge linearly: the solve
+// ends with the secant end phase, at a point where the cost (computed here
+// from the metric's definition) equals the reported one and no single
+// parameter's small move inside its bounds lowers it.
+TEST(Fit, LargeResidualFitEndsAtALocalMinimum) {
+  const Dataset d = OutsideMaterial(3000, 41);
+  const Model m = Model::Parse("lambert+ggx+ggx");
+  Options o;
+  o.metric = Metric::kCbrt;
+  o.covariance = false;
+  // From a given start the final solve does all the work.
+  o.initial = ParseParams(m.Info(), "lambert.albedo=0.3,ggx.alpha=0.1,ggx.f0=0.1,ggx.weight=0.8,ggx#2.alpha=0.3,"
+                                    "ggx#2.f0=0.1,ggx#2.weight=0.3");
+  const Result r = Fit(m, d, o);
+  EXPECT_NE(r.message.find("secant end phase"), std::string::npos) << r.message;
+  EXPECT_TRUE(r.converged);
+  const auto b = m.Make<double>();
+  const auto cost = [&](const std::vector<double>& p) {
+    double sum = 0;
+    for (const Sample& x : d.samples) {
+      const Eigen::Array3d f = b->Eval(p.data(), x.wi, x.wo);
+      for (int ch = 0; ch < 3; ++ch) {
+        const double e = std::cbrt(f[ch] * x.wi.z()) - std::cbrt(x.f[ch] * x.wi.z());
+        sum += 0.5 * e * e;
+      }
+    }
+    return sum;
+  };
+  const double at = cost(r.params);
+  EXPECT_NEAR(at, r.cost, 1e-9 * r.cost);
+  std::vector<ParamInfo> slots;  // one per packed value
+  for (const ParamInfo& q : m.Info().params)
+    for (int c = 0; c < (q.colour ? 3 : 1); ++c) slots.push_back(q);
+  for (std::size_t k = 0; k < r.params.size(); ++k) {
+    for (const double sign : {-1.0, 1.0}) {
+      std::vector<double> p = r.params;
+      p[k] *= 1 + sign * 1e-4;
+      if (p[k] < slots[k].lower || p[k] > slots[k].upper || r.fixed[k]) continue;
+      EXPECT_GE(cost(p), at * (1 - 1e-13)) << r.packed_names[k] << (sign > 0 ? " raised" : " lowered");
+    }
+  }
+}
+
 // The same on a table large for its start subset (the sub-sums refined on
 // the middle subset, solved on all samples only when within reach of the
 // sum after its final solve): never worse than the sub-sums fitted alone.

@@ -159,6 +159,20 @@ Prepared Rows(const Prepared& p, const std::vector<std::size_t>& rows) {
   return out;
 }
 
+// Cost (half the sum of squared residuals) of internal parameters u over d;
+// infinite where a residual is not finite.
+double CostOf(const Engine& e, const Prepared& d, const std::vector<double>& u) {
+  constexpr std::size_t chunk = 256;
+  return ChunkedSum(d.size(), chunk, 0.0, [&](std::size_t begin, std::size_t end) {
+    double r[3 * chunk];
+    // A non-finite residual makes the point unusable.
+    if (!e.EvalDouble(u.data(), d, begin, end, true, r)) return std::numeric_limits<double>::infinity();
+    double sum = 0;
+    for (std::size_t k = 0; k < 3 * (end - begin); ++k) sum += 0.5 * r[k] * r[k];
+    return sum;
+  });
+}
+
 // Root mean square of the plain metric residuals.
 double Rmse(const Engine& e, const Prepared& d, const std::vector<double>& u) {
   if (d.size() == 0) return 0;

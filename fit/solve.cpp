@@ -1,5 +1,6 @@
 // The Ceres problem: residual blocks of chunks of samples over the engine,
 // bounds in the internal parameters, and the solver's settings.
+#include <Eigen/Cholesky>
 #include <Eigen/Householder>
 #include <Eigen/QR>
 
@@ -100,6 +101,7 @@ class CompressedChunkCost final : public ceres::CostFunction {
     Eigen::Map<RowMajor>(jac[0], k, Eigen::Index(n)) = R.leftCols(Eigen::Index(n));
     if (cache_) {
       cache_->jtj[slot_] = R.leftCols(Eigen::Index(n)).transpose() * R.leftCols(Eigen::Index(n));
+      cache_->jtr[slot_] = R.leftCols(Eigen::Index(n)).transpose() * R.col(Eigen::Index(n));
       cache_->at[slot_].assign(x[0], x[0] + n);
     }
     return true;
@@ -155,6 +157,7 @@ void BuildProblem(ceres::Problem& problem, const Engine& e, const Prepared& d, s
   const std::size_t blocks = (d.size() + chunk - 1) / chunk;
   if (cache) {
     cache->jtj.assign(blocks, Eigen::MatrixXd());
+    cache->jtr.assign(blocks, Eigen::VectorXd());
     cache->at.assign(blocks, {});
   }
   for (std::size_t b = 0; b < blocks; ++b)
@@ -171,7 +174,7 @@ void BuildProblem(ceres::Problem& problem, const Engine& e, const Prepared& d, s
 std::optional<NormalCache::Normal> HoldingBounds(const Evaluators& model, const Options& o, double loss_scale,
                                                  const Engine& engine, const Prepared& d, std::size_t chunk,
                                                  std::vector<double>& u,
-                                                 const std::function<void(const Engine&, std::vector<double>&)>& solve) {
+                                                 const HeldSolve& solve) {
   std::vector<double> lo, hi;
   Bounds(engine.layout(), engine.log_mask(), lo, hi);
   const auto at_bound = [&](std::size_t j) { return u[j] <= lo[j] || u[j] >= hi[j]; };
@@ -187,20 +190,20 @@ std::optional<NormalCache::Normal> HoldingBounds(const Evaluators& model, const 
   }
   inner.Renumber();
   if (std::find(held.begin(), held.end(), true) == held.end() || inner.Free() == 0) {
-    solve(engine, u);
+    solve(engine, u, nullptr);
     return std::nullopt;
   }
   const Engine held_engine(model, o, loss_scale, inner);
   std::vector<double> v = held_engine.ToInternal(p);
-  solve(held_engine, v);
+  solve(held_engine, v, nullptr);
   u = engine.ToInternal(held_engine.ToUser(v));
-  NormalCache::Normal normal{Eigen::MatrixXd(), u};
-  Eigen::VectorXd g;
-  NormalEquations(engine, d, u, chunk, normal.jtj, g);
+  NormalCache::Normal normal{Eigen::MatrixXd(), u, Eigen::VectorXd()};
+  NormalEquations(engine, d, u, chunk, normal.jtj, normal.jtr);
+  const Eigen::VectorXd& g = normal.jtr;
   for (std::size_t j = 0; j < u.size(); ++j) {
     const bool inward = (u[j] <= lo[j] && g[Eigen::Index(j)] < 0) || (u[j] >= hi[j] && g[Eigen::Index(j)] > 0);
     if (held[j] && inward) {
-      solve(engine, u);
+      solve(engine, u, &normal);
       return std::nullopt;
     }
   }
@@ -209,11 +212,203 @@ std::optional<NormalCache::Normal> HoldingBounds(const Evaluators& model, const 
 
 std::optional<NormalCache::Normal> NormalCache::Last() const {
   if (jtj.empty() || at[0].empty()) return std::nullopt;
-  Normal out{Eigen::MatrixXd::Zero(jtj[0].rows(), jtj[0].cols()), at[0]};
+  Normal out{Eigen::MatrixXd::Zero(jtj[0].rows(), jtj[0].cols()), at[0], Eigen::VectorXd::Zero(jtj[0].rows())};
   for (std::size_t b = 0; b < jtj.size(); ++b) {
     if (at[b] != out.at) return std::nullopt;
     out.jtj += jtj[b];
+    out.jtr += jtr[b];
   }
+  return out;
+}
+
+namespace {
+
+// The structured secant update of A (the estimate of S) for a step s whose
+// gradient changed by y, J^T J at its end being jtj: afterwards
+// A s = y - jtj s, the part of the change Gauss-Newton does not explain.
+void SecantUpdate(Eigen::MatrixXd& a, const Eigen::MatrixXd& jtj, const Eigen::VectorXd& s, const Eigen::VectorXd& y) {
+  const double ys = y.dot(s);
+  // Without positive curvature along s the update is undefined: A stays.
+  if (!(ys > 0) || !y.allFinite()) return;
+  const Eigen::VectorXd target = y - jtj * s;
+  const double sas = s.dot(a * s);
+  // NL2SOL's sizing: A is scaled down where it overstates the curvature along s.
+  if (sas != 0) a *= std::min(1.0, std::abs(s.dot(target) / sas));
+  const Eigen::VectorXd v = target - a * s;
+  a += (v * y.transpose() + y * v.transpose()) / ys - (v.dot(s) / (ys * ys)) * (y * y.transpose());
+}
+
+// The step of (jtj + a + lambda diag(jtj)) d = -g over the free entries
+// (Jacobi-scaled); false where that matrix is not positive definite.
+bool TailStep(const Eigen::MatrixXd& jtj, const Eigen::MatrixXd& a, const Eigen::VectorXd& g,
+              const std::vector<bool>& free, double lambda, Eigen::VectorXd& step) {
+  std::vector<Eigen::Index> idx;
+  for (std::size_t j = 0; j < free.size(); ++j)
+    if (free[j]) idx.push_back(Eigen::Index(j));
+  step = Eigen::VectorXd::Zero(g.size());
+  if (idx.empty()) return true;
+  const Eigen::Index k = Eigen::Index(idx.size());
+  Eigen::MatrixXd m(k, k);
+  Eigen::VectorXd b(k), scale(k);
+  for (Eigen::Index i = 0; i < k; ++i) scale[i] = 1 / std::sqrt(jtj(idx[i], idx[i]));
+  for (Eigen::Index i = 0; i < k; ++i) {
+    b[i] = -g[idx[i]] * scale[i];
+    for (Eigen::Index j = 0; j < k; ++j)
+      m(i, j) = (jtj(idx[i], idx[j]) + a(idx[i], idx[j])) * scale[i] * scale[j] + (i == j ? lambda : 0.0);
+  }
+  const Eigen::LDLT<Eigen::MatrixXd> ldlt(m);
+  if (ldlt.info() != Eigen::Success || !(ldlt.vectorD().minCoeff() > 0)) return false;
+  const Eigen::VectorXd x = ldlt.solve(b);
+  if (!x.allFinite()) return false;
+  for (Eigen::Index i = 0; i < k; ++i) step[idx[i]] = x[i] * scale[i];
+  return true;
+}
+
+}  // namespace
+
+Tail SecantTail(const Engine& e, const Prepared& d, std::size_t chunk, const NormalCache::Normal& last, double cost,
+                const std::optional<NormalCache::Normal>& previous, double ftol, int max_iterations,
+                const std::function<void(int, double, const std::vector<double>&)>& accepted) {
+  Tail t;
+  t.u = last.at;
+  t.cost = cost;
+  t.normal = last;
+  const Eigen::Index n = Eigen::Index(t.u.size());
+  const auto vec = [](const std::vector<double>& v) { return Eigen::Map<const Eigen::VectorXd>(v.data(), Eigen::Index(v.size())); };
+  Eigen::MatrixXd a = Eigen::MatrixXd::Zero(n, n);
+  if (previous) SecantUpdate(a, last.jtj, vec(last.at) - vec(previous->at), last.jtr - previous->jtr);
+  std::vector<double> lo, hi;
+  Bounds(e.layout(), e.log_mask(), lo, hi);
+  // Levenberg-Marquardt damping, relative to the Jacobi-scaled diagonal (1).
+  double lambda = 1e-12;
+  constexpr double kMaxLambda = 1e8;
+  while (t.iterations < max_iterations && lambda <= kMaxLambda) {
+    const Eigen::MatrixXd& jtj = t.normal.jtj;
+    const Eigen::VectorXd& g = t.normal.jtr;
+    // An entry that does not act on the cost, or sits on a bound the
+    // gradient presses against, stays where it is.
+    std::vector<bool> free(std::size_t(n), true);
+    for (Eigen::Index j = 0; j < n; ++j) {
+      const std::size_t k = std::size_t(j);
+      free[k] = jtj(j, j) > 0 && !(t.u[k] <= lo[k] && g[j] > 0) && !(t.u[k] >= hi[k] && g[j] < 0);
+    }
+    // The step over the free entries; an entry on a bound that the step
+    // would cross is held too, and the step solved again.
+    Eigen::VectorXd step;
+    bool solved = TailStep(jtj, a, g, free, lambda, step);
+    for (Eigen::Index pass = 0; solved && pass < n; ++pass) {
+      bool held = false;
+      for (Eigen::Index j = 0; j < n; ++j) {
+        const std::size_t k = std::size_t(j);
+        if (free[k] && ((t.u[k] <= lo[k] && step[j] < 0) || (t.u[k] >= hi[k] && step[j] > 0))) {
+          free[k] = false;
+          held = true;
+        }
+      }
+      if (!held) break;
+      solved = TailStep(jtj, a, g, free, lambda, step);
+    }
+    if (!solved) {
+      lambda = std::max(10 * lambda, 1e-6);
+      continue;
+    }
+    // Projected onto the bounds.
+    std::vector<double> trial(t.u);
+    for (Eigen::Index j = 0; j < n; ++j) {
+      const std::size_t k = std::size_t(j);
+      trial[k] = std::clamp(t.u[k] + step[j], lo[k], hi[k]);
+    }
+    ++t.iterations;
+    const double c = CostOf(e, d, trial);
+    if (!(c < t.cost)) {
+      lambda = std::max(10 * lambda, 1e-6);
+      continue;
+    }
+    NormalCache::Normal next{Eigen::MatrixXd(), trial, Eigen::VectorXd()};
+    NormalEquations(e, d, trial, chunk, next.jtj, next.jtr);
+    SecantUpdate(a, next.jtj, vec(trial) - vec(t.u), next.jtr - g);
+    const double decrease = t.cost - c;
+    t.u = trial;
+    t.cost = c;
+    t.normal = std::move(next);
+    lambda = std::max(lambda / 10, 1e-12);
+    t.change = decrease / c;
+    ++t.accepted;
+    accepted(t.iterations, c, t.u);
+    if (decrease <= ftol * c) {
+      t.converged = true;
+      break;
+    }
+  }
+  // No step lowers the cost even as a short gradient step: the point is a
+  // minimum to the precision of the cost.
+  if (lambda > kMaxLambda) t.converged = true;
+  return t;
+}
+
+// Where a Levenberg-Marquardt solve has become linear (SolveToEnd).
+constexpr double kTailStart = 1e-4, kTailMinRatio = 0.1, kTailMaxRatio = 0.95;
+
+Solved SolveToEnd(const Engine& e, const Prepared& d, std::size_t chunk, std::vector<double>& u,
+                  ceres::Solver::Options so, const NormalCache::Normal* from,
+                  const std::function<void(int, double, const std::vector<double>&)>& trace) {
+  ceres::Problem problem;
+  NormalCache cache;
+  BuildProblem(problem, e, d, chunk, u, &cache);
+  so.update_state_every_iteration = true;  // trace reads u
+  // The successful iterations' costs and the normal equations at the last two.
+  std::vector<double> costs;
+  std::optional<NormalCache::Normal> previous, last;
+  TraceCallback callback(
+      [&](const ceres::IterationSummary& it) {
+        if (it.iteration > 0 && !it.step_is_successful) return;
+        trace(it.iteration, it.cost, u);
+      },
+      [&](const ceres::IterationSummary& it) {
+        if (it.iteration > 0 && !it.step_is_successful) return false;
+        previous = std::move(last);
+        last = cache.Last();
+        costs.push_back(it.cost);
+        const std::size_t k = costs.size();
+        if (k < 4 || !previous || !last) return false;
+        const auto decrease = [&](std::size_t j) { return costs[j - 1] - costs[j]; };
+        const auto steady = [](double later, double earlier) {
+          return earlier > 0 && later >= kTailMinRatio * earlier && later <= kTailMaxRatio * earlier;
+        };
+        return decrease(k - 1) <= kTailStart * costs[k - 1] && steady(decrease(k - 1), decrease(k - 2)) &&
+               steady(decrease(k - 2), decrease(k - 3));
+      });
+  so.callbacks.push_back(&callback);
+  Solved out;
+  ceres::Solver::Summary& summary = out.summary;
+  if (from) {
+    summary.termination_type = ceres::USER_SUCCESS;
+    summary.num_successful_steps = summary.num_unsuccessful_steps = 0;
+    costs.assign(1, CostOf(e, d, u));
+    trace(0, costs[0], u);
+    last = *from;
+  } else {
+    ceres::Solve(so, &problem, &summary);
+  }
+  out.normal = cache.Last();
+  if (summary.termination_type != ceres::USER_SUCCESS || !last) return out;
+  const int done = summary.num_successful_steps + summary.num_unsuccessful_steps;
+  const Tail t = SecantTail(e, d, chunk, *last, costs.back(), previous, so.function_tolerance,
+                            so.max_num_iterations - done,
+                            [&](int k, double cost, const std::vector<double>& at) { trace(done + k, cost, at); });
+  u = t.u;
+  out.normal = t.normal;
+  summary.final_cost = t.cost;
+  summary.num_successful_steps += t.accepted;
+  summary.num_unsuccessful_steps += t.iterations - t.accepted;
+  summary.termination_type = t.converged ? ceres::CONVERGENCE : ceres::NO_CONVERGENCE;
+  summary.message = t.converged ? "Function tolerance reached in the secant end phase" +
+                                      (from ? std::string(" after held bounds were released")
+                                            : " after " + std::to_string(done) + " Levenberg-Marquardt iterations") +
+                                      ". |cost_change|/cost: " + FormatDouble(t.change) + " <= " +
+                                      FormatDouble(so.function_tolerance)
+                                : "Maximum number of iterations reached (" + std::to_string(so.max_num_iterations) +
+                                      ") in the secant end phase";
   return out;
 }
 

@@ -187,39 +187,20 @@ void ClampToBounds(const Engine& e, std::vector<double>& u) {
 }
 
 // One start: solves from internal parameters u (updated in place) over `d`
-// for at most `iterations`, traced as the next start under `stage`.
+// for at most `iterations`, traced as the next start under `stage`
+// (SolveToEnd; `from` as there).
 ceres::Solver::Summary SolveStart(const FitState& s, const Engine& e, const Prepared& d, std::vector<double>& u,
-                                  int iterations, double ftol, const std::string& stage) {
-  ceres::Problem problem;
-  BuildProblem(problem, e, d, s.chunk, u);
+                                  int iterations, double ftol, const std::string& stage,
+                                  const NormalCache::Normal* from = nullptr) {
   ceres::Solver::Options so = SolverOptions(s.o, LinearSolver::kDenseQr, iterations);
   so.function_tolerance = ftol;
-  so.update_state_every_iteration = s.sigma;  // the RMSE below reads u
   const int start = ++s.res.starts;
-  TraceCallback callback([&](const ceres::IterationSummary& it) {
-    if (it.iteration > 0 && !it.step_is_successful) return;
-    // Without sigma the plain engine's cost is the metric's sum of squares / 2.
-    const double rmse = s.sigma ? Rmse(e, d, u) : std::sqrt(2 * it.cost / (3.0 * d.size()));
-    s.res.trace.push_back({it.iteration, s.elapsed(), it.cost, rmse, start, stage});
-  });
-  so.callbacks.push_back(&callback);
-  ceres::Solver::Summary summary;
-  ceres::Solve(so, &problem, &summary);
-  return summary;
-}
-
-// Cost (half the sum of squared residuals) of internal parameters u over d;
-// infinite where a residual is not finite.
-double CostOf(const Engine& e, const Prepared& d, const std::vector<double>& u) {
-  constexpr std::size_t chunk = 256;
-  return ChunkedSum(d.size(), chunk, 0.0, [&](std::size_t begin, std::size_t end) {
-    double r[3 * chunk];
-    // A non-finite residual makes the point unusable.
-    if (!e.EvalDouble(u.data(), d, begin, end, true, r)) return std::numeric_limits<double>::infinity();
-    double sum = 0;
-    for (std::size_t k = 0; k < 3 * (end - begin); ++k) sum += 0.5 * r[k] * r[k];
-    return sum;
-  });
+  return SolveToEnd(e, d, s.chunk, u, so, from, [&](int iteration, double cost, const std::vector<double>& at) {
+           // Without sigma the plain engine's cost is the metric's sum of squares / 2.
+           const double rmse = s.sigma ? Rmse(e, d, at) : std::sqrt(2 * cost / (3.0 * d.size()));
+           s.res.trace.push_back({iteration, s.elapsed(), cost, rmse, start, stage});
+         })
+      .summary;
 }
 
 // Multi-start and nested sub-sums of a sum of lobes (Fit's start strategy).
@@ -568,14 +549,14 @@ class StartSearch {
     std::vector<double> u = e.ToInternal(p);
     ClampToBounds(e, u);
     ceres::Solver::Summary summary;
-    const auto solve = [&](const Engine& en, std::vector<double>& v) {
-      summary = SolveStart(s_, en, d, v, iterations, ftol, stage);
+    const auto solve = [&](const Engine& en, std::vector<double>& v, const NormalCache::Normal* from) {
+      summary = SolveStart(s_, en, d, v, iterations, ftol, stage, from);
     };
     // Refinements (on all samples or the middle subset) hold the active
     // bounds: Ceres' bounded steps cost several Jacobian passes each (an l2
     // refinement on the middle subset took 2.3 s in 23 iterations).
     if (&d != &subset_) HoldingBounds(evaluators_, plain_options_, 1.0, e, d, s_.chunk, u, solve);
-    else solve(e, u);
+    else solve(e, u, nullptr);
     Candidate c;
     if (!summary.IsSolutionUsable()) return c;
     c.p = e.ToUser(u);
