@@ -804,6 +804,37 @@ TEST(Fit, SumIsNeverWorseThanItsNestedSubSumsOnLargeTables) {
   }
 }
 
+// A second specular lobe that does not pay on a large table (the outside
+// material, whose haze the one lobe and the diffuse term absorb): the final
+// solve starts from the nested sub-sum and leaves the lobe off, so it was
+// that sub-sum's solve on all samples and is not repeated; the sum ends
+// where the sub-sum fitted on its own ends.
+TEST(Fit, FinalSolveWithALobeOffIsTheSubSumsSolve) {
+  const Dataset d = OutsideMaterial(6000, 37);
+  for (Metric metric : {Metric::kCbrt, Metric::kLog}) {
+    SCOPED_TRACE(MetricName(metric));
+    Options o;
+    o.metric = metric;
+    o.covariance = false;
+    o.start_subset = 64;
+    const Result two = Fit(Model::Parse("lambert+ggx+ggx"), d, o);
+    const Result alone = Fit(Model::Parse("lambert+ggx"), d, o);
+    EXPECT_EQ(two.params[12], 0.0);  // ggx#2.weight: the second lobe is off
+    EXPECT_NEAR(two.cost, alone.cost, 1e-9 * alone.cost);
+    int by_final = 0, solved_again = 0;
+    for (const TracePoint& t : two.trace) {
+      by_final += t.stage == "lambert+ggx: solved by the final solve (all samples)";
+      solved_again += t.stage == "lambert+ggx: refine (all samples)";
+    }
+    EXPECT_EQ(by_final, 1);
+    EXPECT_EQ(solved_again, 0);
+    bool listed = false;
+    for (const LocalOptimum& l : two.local_optima)
+      listed = listed || (l.origin == "nested lambert+ggx (all samples, the final solve)" && l.params == two.params);
+    EXPECT_TRUE(listed);
+  }
+}
+
 // A known two-lobe truth (a narrow and a wide GGX lobe over a diffuse
 // base) is found from the default starts, whichever order its lobes are
 // written in.

@@ -238,21 +238,26 @@ void SecantUpdate(Eigen::MatrixXd& a, const Eigen::MatrixXd& jtj, const Eigen::V
   a += (v * y.transpose() + y * v.transpose()) / ys - (v.dot(s) / (ys * ys)) * (y * y.transpose());
 }
 
-// The step of (jtj + a + lambda diag(jtj)) d = -g over the free entries
-// (Jacobi-scaled); false where that matrix is not positive definite.
+// The step d of (jtj + a + lambda diag(jtj)) d = -g over the free entries
+// (Jacobi-scaled), each other entry j moved by fixed[j] (0, or to its
+// bound); false where that matrix is not positive definite.
 bool TailStep(const Eigen::MatrixXd& jtj, const Eigen::MatrixXd& a, const Eigen::VectorXd& g,
-              const std::vector<bool>& free, double lambda, Eigen::VectorXd& step) {
+              const std::vector<bool>& free, const Eigen::VectorXd& fixed, double lambda, Eigen::VectorXd& step) {
   std::vector<Eigen::Index> idx;
   for (std::size_t j = 0; j < free.size(); ++j)
     if (free[j]) idx.push_back(Eigen::Index(j));
   step = Eigen::VectorXd::Zero(g.size());
+  for (std::size_t j = 0; j < free.size(); ++j)
+    if (!free[j]) step[Eigen::Index(j)] = fixed[Eigen::Index(j)];
   if (idx.empty()) return true;
+  // The gradient of the model at the fixed entries' moves.
+  const Eigen::VectorXd moved = g + (jtj + a) * step;
   const Eigen::Index k = Eigen::Index(idx.size());
   Eigen::MatrixXd m(k, k);
   Eigen::VectorXd b(k), scale(k);
   for (Eigen::Index i = 0; i < k; ++i) scale[i] = 1 / std::sqrt(jtj(idx[i], idx[i]));
   for (Eigen::Index i = 0; i < k; ++i) {
-    b[i] = -g[idx[i]] * scale[i];
+    b[i] = -moved[idx[i]] * scale[i];
     for (Eigen::Index j = 0; j < k; ++j)
       m(i, j) = (jtj(idx[i], idx[j]) + a(idx[i], idx[j])) * scale[i] * scale[j] + (i == j ? lambda : 0.0);
   }
@@ -292,27 +297,32 @@ Tail SecantTail(const Engine& e, const Prepared& d, std::size_t chunk, const Nor
       const std::size_t k = std::size_t(j);
       free[k] = jtj(j, j) > 0 && !(t.u[k] <= lo[k] && g[j] > 0) && !(t.u[k] >= hi[k] && g[j] < 0);
     }
-    // The step over the free entries; an entry on a bound that the step
-    // would cross is held too, and the step solved again.
-    Eigen::VectorXd step;
-    bool solved = TailStep(jtj, a, g, free, lambda, step);
+    // The step over the free entries. An entry that the step would take
+    // past a bound is moved onto it and the rest solved again with that
+    // move: the others' steps were solved for the whole of it, and cutting
+    // it alone (projecting) leaves them overshooting.
+    Eigen::VectorXd step, fixed = Eigen::VectorXd::Zero(n);
+    bool solved = TailStep(jtj, a, g, free, fixed, lambda, step);
     for (Eigen::Index pass = 0; solved && pass < n; ++pass) {
       bool held = false;
       for (Eigen::Index j = 0; j < n; ++j) {
         const std::size_t k = std::size_t(j);
-        if (free[k] && ((t.u[k] <= lo[k] && step[j] < 0) || (t.u[k] >= hi[k] && step[j] > 0))) {
+        if (!free[k]) continue;
+        const double to = t.u[k] + step[j];
+        if (to < lo[k] || to > hi[k]) {
           free[k] = false;
+          fixed[j] = std::clamp(to, lo[k], hi[k]) - t.u[k];
           held = true;
         }
       }
       if (!held) break;
-      solved = TailStep(jtj, a, g, free, lambda, step);
+      solved = TailStep(jtj, a, g, free, fixed, lambda, step);
     }
     if (!solved) {
       lambda = std::max(10 * lambda, 1e-6);
       continue;
     }
-    // Projected onto the bounds.
+    // Within the bounds (the pinned entries' moves can round past them).
     std::vector<double> trial(t.u);
     for (Eigen::Index j = 0; j < n; ++j) {
       const std::size_t k = std::size_t(j);

@@ -325,19 +325,33 @@ class StartSearch {
   // removed that was not solved on all samples and whose cost there is
   // within kNestedMargin of final_cost is solved on all samples now. When
   // one ends below final_cost its parameters are returned for a new final
-  // solve, so the sum is never worse than its sub-sums.
-  std::optional<Candidate> RefineNested(double final_cost) {
+  // solve, so the sum is never worse than its sub-sums. A sub-sum whose
+  // lobes the final solve left switched off, from a start (user parameters
+  // `start`) in the sub-sum's own basin (SameSolution), was solved on all
+  // samples by the final solve itself: its optimum is `final_p`.
+  std::optional<Candidate> RefineNested(double final_cost, const std::vector<double>& final_p,
+                                        const std::vector<double>& start) {
     std::optional<Candidate> better;
     for (unsigned mask : top_kids_) {
       Candidate& kid = memo_[mask];
       if (kid.on_all || !(kid.cost <= final_cost * (1 + kNestedMargin))) continue;
       const std::string name = ActiveSpec(mask);
       const Engine plain(evaluators_, plain_options_, 1.0, LevelLayout(mask));
+      const auto trace = [&](double cost, const std::vector<double>& p, const std::string& what) {
+        const double rmse =
+            s_.sigma ? Rmse(plain, full_, plain.ToInternal(p)) : std::sqrt(2 * cost / (3.0 * full_.size()));
+        s_.res.trace.push_back({0, s_.elapsed(), cost, rmse, 0, name + ": " + what});
+      };
+      if (SwitchedOff(mask, start) && SwitchedOff(mask, final_p) &&
+          SameSolution(plain.ToInternal(start), plain.ToInternal(kid.p))) {
+        kid = {final_p, final_cost, kid.origin, true};
+        trace(final_cost, final_p, "solved by the final solve (all samples)");
+        s_.res.local_optima.push_back({kid.cost, kid.p, "nested " + name + " (all samples, the final solve)"});
+        continue;
+      }
       if (kid.cost - kGainBound * GaussNewtonGain(plain, kid.p) > final_cost) {
         // The pass the bound took, traced at the sub-sum's cost there.
-        const double rmse = s_.sigma ? Rmse(plain, full_, plain.ToInternal(kid.p))
-                                     : std::sqrt(2 * kid.cost / (3.0 * full_.size()));
-        s_.res.trace.push_back({0, s_.elapsed(), kid.cost, rmse, 0, name + ": bounded (all samples), not solved"});
+        trace(kid.cost, kid.p, "bounded (all samples), not solved");
         continue;
       }
       Candidate c = Solve(plain, full_, kid.p, o_.max_iterations, o_.function_tolerance, name + ": refine (all samples)");
@@ -356,6 +370,15 @@ class StartSearch {
   }
 
  private:
+  // Whether every lobe in `mask` is switched off in user parameters p.
+  bool SwitchedOff(unsigned mask, const std::vector<double>& p) const {
+    for (std::size_t k = 0; k < model_.LobeCount(); ++k)
+      if (mask >> k & 1u)
+        for (std::size_t q : SwitchSlots(model_, k))
+          if (p[q] != 0) return false;
+    return true;
+  }
+
   std::string ActiveSpec(unsigned mask) const {
     std::string s;
     for (std::size_t k = 0; k < model_.LobeCount(); ++k)
@@ -639,7 +662,7 @@ Start SearchSum(const FitState& s, const Model& sum) {
   ClampToBounds(s.plain, start.u);
   if (large)
     start.after_final = [state, &s, kept = best.p](const std::vector<double>& p) -> std::optional<std::vector<double>> {
-      const std::optional<Candidate> better = state->search->RefineNested(state->search->PlainFullCost(p));
+      const std::optional<Candidate> better = state->search->RefineNested(state->search->PlainFullCost(p), p, kept);
       Keep(s, better ? better->p : kept);
       if (!better) return std::nullopt;
       std::vector<double> u = s.plain.ToInternal(better->p);
