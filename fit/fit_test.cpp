@@ -10,6 +10,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <numeric>
 #include <random>
 #include <sstream>
 
@@ -22,6 +23,8 @@
 #include "brdf/params.h"
 #include "data_synth/forward_model.h"
 #include "data_synth/instrument.h"
+#include "fit/fit_internal.h"
+#include "fit/jet_models.h"
 #include "data_synth/outputs.h"
 #include "data_synth/synth.h"
 #include "data_synth/table_io.h"
@@ -801,6 +804,67 @@ TEST(Fit, SumIsNeverWorseThanItsNestedSubSumsOnLargeTables) {
     bool single_middle = false;
     for (const TracePoint& t : f.one.trace) single_middle = single_middle || t.stage == "refine (1024 samples)";
     EXPECT_TRUE(single_middle);
+  }
+}
+
+// The compressed residual blocks hand Ceres each chunk's cost, gradient
+// and normal matrix: against the same sums over the raw residuals and
+// their Jacobian (Engine::EvalJacobian, one block of all samples), under
+// the cube-root metric (whose derivative spans many scales) and with a
+// lobe switched off (its width and Fresnel columns are zero, so most
+// chunks are rank-deficient).
+TEST(Fit, CompressedBlocksCarryTheCostGradientAndNormalMatrix) {
+  const Model m = Model::Parse("lambert+ggx+ggx");
+  const std::vector<double> truth = ParseParams(
+      m.Info(), "lambert.albedo=0.3:0.2:0.1,ggx.alpha=0.06,ggx.f0=0.9:0.7:0.5,ggx.weight=0.8,"
+                "ggx#2.alpha=0.4,ggx#2.f0=0.5:0.5:0.6,ggx#2.weight=0.3");
+  const Dataset d = Synthesise(m, truth, 900, 23, 0.05);
+  for (const char* at : {"ggx#2.weight=0.3", "ggx#2.weight=0"}) {
+    SCOPED_TRACE(at);
+    const std::vector<double> p = ParseParams(
+        m.Info(), std::string("lambert.albedo=0.25:0.2:0.15,ggx.alpha=0.07,ggx.f0=0.8:0.7:0.6,ggx.weight=0.9,"
+                              "ggx#2.alpha=0.3,ggx#2.f0=0.5:0.5:0.6,") + at);
+    Options o;
+    o.metric = Metric::kCbrt;
+    std::vector<std::size_t> index(d.samples.size());
+    std::iota(index.begin(), index.end(), std::size_t(0));
+    const Prepared prep = Prepare(d, index, o);
+    const ModelEvaluators evaluators(m);
+    const Engine e(evaluators, o, 1.0, MakeLayout(m.Info(), o));
+    std::vector<double> u = e.ToInternal(p);
+    const std::size_t n = e.n(), rows = 3 * prep.size();
+    std::vector<double> r(rows), j(rows * n);
+    ASSERT_TRUE(e.EvalJacobian(u.data(), prep, 0, prep.size(), r.data(), j.data()));
+    const Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> J(
+        j.data(), Eigen::Index(rows), Eigen::Index(n));
+    const Eigen::Map<const Eigen::VectorXd> rv(r.data(), Eigen::Index(rows));
+    const Eigen::MatrixXd jtj = J.transpose() * J;
+    const Eigen::VectorXd jtr = J.transpose() * rv;
+    const double zero_columns = double((J.colwise().norm().array() == 0).count());
+    EXPECT_EQ(zero_columns, std::string(at) == "ggx#2.weight=0" ? 4.0 : 0.0);  // ggx#2.alpha and f0
+
+    ceres::Problem problem;
+    BuildProblem(problem, e, prep, 64, u);
+    double cost = 0;
+    std::vector<double> gradient;
+    ceres::CRSMatrix crs;
+    ASSERT_TRUE(problem.Evaluate(ceres::Problem::EvaluateOptions(), &cost, nullptr, &gradient, &crs));
+    Eigen::MatrixXd c = Eigen::MatrixXd::Zero(crs.num_rows, crs.num_cols);
+    for (int row = 0; row < crs.num_rows; ++row)
+      for (int k = crs.rows[std::size_t(row)]; k < crs.rows[std::size_t(row) + 1]; ++k)
+        c(row, crs.cols[std::size_t(k)]) = crs.values[std::size_t(k)];
+    EXPECT_EQ(std::size_t(crs.num_rows), (n + 1) * ((prep.size() + 63) / 64));
+    EXPECT_NEAR(cost, 0.5 * rv.squaredNorm(), 1e-13 * rv.squaredNorm());
+    const Eigen::Map<const Eigen::VectorXd> g(gradient.data(), Eigen::Index(n));
+    EXPECT_LE((g - jtr).norm(), 1e-10 * (J.norm() * rv.norm()));
+    EXPECT_LE((c.transpose() * c - jtj).norm(), 1e-12 * jtj.norm());
+    // The scale-free part too: each entry against the geometric mean of its diagonals.
+    for (Eigen::Index a = 0; a < Eigen::Index(n); ++a)
+      for (Eigen::Index b = 0; b < Eigen::Index(n); ++b) {
+        if (!(jtj(a, a) > 0 && jtj(b, b) > 0)) continue;
+        const double scale = std::sqrt(jtj(a, a) * jtj(b, b));
+        EXPECT_NEAR((c.transpose() * c)(a, b) / scale, jtj(a, b) / scale, 1e-11) << a << ", " << b;
+      }
   }
 }
 
