@@ -154,7 +154,7 @@ Result FitInArena(const Evaluators& model, const Dataset& data, const Options& o
   const Layout layout = MakeLayout(info, o);
   // Engine without a robust loss for the start search; its scale is chosen below.
   const Engine plain(model, WithoutLoss(o), 1.0, layout);
-  const FitState s{model, data, o, sel, full, layout, plain, data.has_sigma && o.use_sigma,
+  const FitState s{model, data, o, full, layout, plain, data.has_sigma && o.use_sigma,
                    std::max<std::size_t>(1, o.chunk), elapsed, res};
 
   const Start start = StartingPoint(s);

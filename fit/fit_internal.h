@@ -256,7 +256,6 @@ struct FitState {
   const Evaluators& model;
   const Dataset& data;
   const Options& o;
-  const Selection& sel;
   const Prepared& full;
   const Layout& layout;
   const Engine& plain;
@@ -416,6 +415,9 @@ using HeldSolve = std::function<void(const Engine&, std::vector<double>&, const 
 std::optional<NormalCache::Normal> HoldingBounds(const Evaluators& model, const Options& o, double loss_scale,
                                                  const Engine& engine, const Prepared& d, std::size_t chunk,
                                                  std::vector<double>& u, const HeldSolve& solve);
+// The Jacobi scaling of a normal matrix: 1 / sqrt of each diagonal entry, 0
+// for a column without effect (the scaled matrix's diagonal is 1 or 0).
+Eigen::VectorXd JacobiScale(const Eigen::MatrixXd& jtj);
 // J^T J and J^T r (the cost's gradient) of engine e over d at internal parameters u.
 void NormalEquations(const Engine& e, const Prepared& d, const std::vector<double>& u, std::size_t chunk,
                      Eigen::MatrixXd& jtj, Eigen::VectorXd& jtr);

@@ -106,8 +106,7 @@ class CompressedChunkCost final : public ceres::CostFunction {
     // for semidefinite matrices, stopped where the largest pivot left is at
     // rounding level: those directions carry no curvature) gives
     // B = R P S^(-1) and z = R^(-T) P S J^T r.
-    Eigen::VectorXd sc(k);
-    for (Eigen::Index i = 0; i < k; ++i) sc[i] = jtj(i, i) > 0 ? 1 / std::sqrt(jtj(i, i)) : 0.0;
+    const Eigen::VectorXd sc = JacobiScale(jtj);
     Eigen::MatrixXd g = sc.asDiagonal() * jtj * sc.asDiagonal();
     Eigen::VectorXd z = sc.cwiseProduct(jtr);
     std::vector<Eigen::Index> perm(static_cast<std::size_t>(k));
@@ -173,6 +172,12 @@ ceres::LinearSolverType ToCeres(LinearSolver s) {
 }
 
 }  // namespace
+
+Eigen::VectorXd JacobiScale(const Eigen::MatrixXd& jtj) {
+  Eigen::VectorXd s(jtj.rows());
+  for (Eigen::Index i = 0; i < jtj.rows(); ++i) s[i] = jtj(i, i) > 0 ? 1 / std::sqrt(jtj(i, i)) : 0.0;
+  return s;
+}
 
 // Bounds of the internal (free) parameters: the intersection of the bounds
 // of the packed slots each one feeds.
@@ -302,7 +307,8 @@ bool TailStep(const Eigen::MatrixXd& jtj, const Eigen::MatrixXd& a, const Eigen:
   const Eigen::Index k = Eigen::Index(idx.size());
   Eigen::MatrixXd m(k, k);
   Eigen::VectorXd b(k), scale(k);
-  for (Eigen::Index i = 0; i < k; ++i) scale[i] = 1 / std::sqrt(jtj(idx[i], idx[i]));
+  const Eigen::VectorXd unit = JacobiScale(jtj);
+  for (Eigen::Index i = 0; i < k; ++i) scale[i] = unit[idx[i]];
   for (Eigen::Index i = 0; i < k; ++i) {
     b[i] = -moved[idx[i]] * scale[i];
     for (Eigen::Index j = 0; j < k; ++j)

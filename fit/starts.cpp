@@ -547,8 +547,7 @@ class StartSearch {
     NormalEquations(e, full_, e.ToInternal(p), s_.chunk, jtj, g);
     if (!jtj.allFinite() || !g.allFinite()) return std::numeric_limits<double>::infinity();
     const Eigen::Index n = jtj.rows();
-    Eigen::VectorXd scale(n);
-    for (Eigen::Index k = 0; k < n; ++k) scale[k] = jtj(k, k) > 0 ? 1 / std::sqrt(jtj(k, k)) : 0.0;
+    const Eigen::VectorXd scale = JacobiScale(jtj);
     const Eigen::MatrixXd a = scale.asDiagonal() * jtj * scale.asDiagonal();
     const Eigen::VectorXd b = scale.asDiagonal() * g;
     const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(a);

@@ -136,7 +136,7 @@ void Uncertainty(const FitState& s, const Engine& engine, const std::vector<doub
   // n x n normal matrix: the estimator ceres::Covariance computes, without
   // its sparse QR of the whole m x n Jacobian. Scaled to unit diagonal
   // first (the rank test above bounds its condition number by 1e12).
-  const Eigen::VectorXd unit = jtj.diagonal().cwiseSqrt().cwiseInverse();
+  const Eigen::VectorXd unit = JacobiScale(jtj);
   const Eigen::MatrixXd a = unit.asDiagonal() * jtj * unit.asDiagonal();
   const Eigen::LDLT<Eigen::MatrixXd> ldlt(a);
   const auto nn = static_cast<Eigen::Index>(nf);
