@@ -61,8 +61,7 @@ std::optional<NormalCache::Normal> FinalSolve(const FitState& s, const Engine& e
         tp.iteration = iteration;
         tp.seconds = s.elapsed();
         tp.cost = cost;
-        // Without sigma or a robust loss the cost is the metric's sum of squares / 2.
-        tp.rmse = weights_are_metric ? std::sqrt(2 * cost / m) : Rmse(engine, s.full, at);
+        tp.rmse = RmseAt(engine, s.full, at, cost, weights_are_metric);
         res.trace.push_back(tp);
         if (o.progress) o.progress(iteration, tp.seconds, cost);
       });
@@ -117,10 +116,7 @@ void Summarise(const FitState& s, const Engine& engine, const std::vector<double
     res.kept = 0;
   }
   res.chi2_reduced = s.sigma ? residual_variance : std::numeric_limits<double>::quiet_NaN();
-  // Without sigma or a robust loss the cost is the metric's sum of squares
-  // / 2, so the RMSE needs no pass over the samples.
-  res.rmse = !s.sigma && s.o.loss == Loss::kNone ? std::sqrt(2 * res.cost / (3.0 * s.full.size()))
-                                                 : Rmse(engine, s.full, u);
+  res.rmse = RmseAt(engine, s.full, u, res.cost, !s.sigma && s.o.loss == Loss::kNone);
   RelativeErrors(engine, s.full, res.params, res);
   const Dataset& data = s.data;
   if (!s.o.instrument && !data.apertures.empty())

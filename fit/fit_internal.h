@@ -281,6 +281,10 @@ T ChunkedSum(std::size_t n, std::size_t grain, T zero, F&& part) {
 
 // Root mean square of the plain metric residuals.
 double Rmse(const Engine& e, const Prepared& d, const std::vector<double>& u);
+// The same at internal parameters u whose cost over d is `cost`: where the
+// fit's weights are the metric's (no sigma, no robust loss) that cost is
+// the metric's sum of squares / 2 and no pass over the samples is needed.
+double RmseAt(const Engine& e, const Prepared& d, const std::vector<double>& u, double cost, bool weights_are_metric);
 // Cost (half the sum of squared fit residuals) of internal parameters u
 // over d; infinite where a residual is not finite.
 double CostOf(const Engine& e, const Prepared& d, const std::vector<double>& u);

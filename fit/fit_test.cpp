@@ -785,6 +785,16 @@ TEST(Fit, LargeResidualFitEndsAtALocalMinimum) {
   }
 }
 
+// Options for the outside material's 6000 samples as a large table: 6000 >
+// 64 x 64, so the middle subset has 1024 samples; no covariance.
+Options LargeTableOptions(Metric metric) {
+  Options o;
+  o.metric = metric;
+  o.covariance = false;
+  o.start_subset = 64;
+  return o;
+}
+
 // The same on a table large for its start subset (the sub-sums refined on
 // the middle subset, solved on all samples only when within reach of the
 // sum after its final solve): never worse than the sub-sums fitted alone.
@@ -792,10 +802,7 @@ TEST(Fit, SumIsNeverWorseThanItsNestedSubSumsOnLargeTables) {
   const Dataset d = OutsideMaterial(6000, 37);
   for (Metric metric : {Metric::kCbrt, Metric::kL2}) {
     SCOPED_TRACE(MetricName(metric));
-    Options o;
-    o.metric = metric;
-    o.covariance = false;
-    o.start_subset = 64;  // 6000 > 64 x 64: the middle subset has 1024 samples
+    const Options o = LargeTableOptions(metric);
     const NestedFits f = FitNested(d, o, "ggx");
     bool middle = false;
     for (const TracePoint& t : f.three.trace) middle = middle || t.stage.find("(1024 samples)") != std::string::npos;
@@ -877,10 +884,7 @@ TEST(Fit, FinalSolveWithALobeOffIsTheSubSumsSolve) {
   const Dataset d = OutsideMaterial(6000, 37);
   for (Metric metric : {Metric::kCbrt, Metric::kLog}) {
     SCOPED_TRACE(MetricName(metric));
-    Options o;
-    o.metric = metric;
-    o.covariance = false;
-    o.start_subset = 64;
+    const Options o = LargeTableOptions(metric);
     const Result two = Fit(Model::Parse("lambert+ggx+ggx"), d, o);
     const Result alone = Fit(Model::Parse("lambert+ggx"), d, o);
     EXPECT_EQ(two.params[12], 0.0);  // ggx#2.weight: the second lobe is off

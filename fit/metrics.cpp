@@ -173,6 +173,10 @@ double CostOf(const Engine& e, const Prepared& d, const std::vector<double>& u) 
   });
 }
 
+double RmseAt(const Engine& e, const Prepared& d, const std::vector<double>& u, double cost, bool weights_are_metric) {
+  return weights_are_metric ? std::sqrt(2 * cost / (3.0 * d.size())) : Rmse(e, d, u);
+}
+
 // Root mean square of the plain metric residuals.
 double Rmse(const Engine& e, const Prepared& d, const std::vector<double>& u) {
   if (d.size() == 0) return 0;

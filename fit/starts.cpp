@@ -196,9 +196,8 @@ ceres::Solver::Summary SolveStart(const FitState& s, const Engine& e, const Prep
   so.function_tolerance = ftol;
   const int start = ++s.res.starts;
   return SolveToEnd(e, d, s.chunk, u, so, from, [&](int iteration, double cost, const std::vector<double>& at) {
-           // Without sigma the plain engine's cost is the metric's sum of squares / 2.
-           const double rmse = s.sigma ? Rmse(e, d, at) : std::sqrt(2 * cost / (3.0 * d.size()));
-           s.res.trace.push_back({iteration, s.elapsed(), cost, rmse, start, stage});
+           // The plain engine has no robust loss.
+           s.res.trace.push_back({iteration, s.elapsed(), cost, RmseAt(e, d, at, cost, !s.sigma), start, stage});
          })
       .summary;
 }
@@ -338,8 +337,7 @@ class StartSearch {
       const std::string name = ActiveSpec(mask);
       const Engine plain(evaluators_, plain_options_, 1.0, LevelLayout(mask));
       const auto trace = [&](double cost, const std::vector<double>& p, const std::string& what) {
-        const double rmse =
-            s_.sigma ? Rmse(plain, full_, plain.ToInternal(p)) : std::sqrt(2 * cost / (3.0 * full_.size()));
+        const double rmse = RmseAt(plain, full_, plain.ToInternal(p), cost, !s_.sigma);
         s_.res.trace.push_back({0, s_.elapsed(), cost, rmse, 0, name + ": " + what});
       };
       if (SwitchedOff(mask, start) && SwitchedOff(mask, final_p) &&
