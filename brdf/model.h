@@ -484,6 +484,15 @@ class Model {
   std::ptrdiff_t LobeWeightIndex(std::size_t k) const { return weights_[k]; }
   // "ggx", "ggx#2": the prefix of lobe k's parameter names in a sum.
   const std::string& LobePrefix(std::size_t k) const { return lobes_[k].prefix; }
+  // Lobe k alone: a one-lobe model with the parameters of LobeInfo(k) (no
+  // weight), sharing the loaded data.
+  Model LobeAlone(std::size_t k) const {
+    Model m;
+    m.spec_ = lobes_[k].info.name;
+    m.lobes_ = {lobes_[k]};
+    m.BuildInfo();
+    return m;
+  }
 
   // The run-time model on scalar T (every registered model is compiled for T).
   template <typename T>

@@ -1,6 +1,7 @@
 // Residuals and Jacobians of a model over prepared samples: the parameter
 // transform (log scale, fixed and tied slots), shared derivative slots of
 // colour parameters, and the instrument's apertures.
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <stdexcept>
@@ -55,6 +56,31 @@ Engine::Engine(const Evaluators& model, const Options& o, double loss_scale, con
   if (jet_ == 8) b8_ = model.MakeJet8();
   if (jet_ == 16) b16_ = model.MakeJet16();
   if (jet_ == 32) b32_ = model.MakeJet32();
+  if (const Model* m = model.AsModel(); m && m->LobeCount() > 1) {
+    bool smaller = false;
+    for (std::size_t k = 0; k < m->LobeCount(); ++k) {
+      LobeJet l;
+      l.offset = m->LobeOffset(k);
+      l.size = m->LobeInfo(k).PackedSize();
+      l.weight = m->LobeWeightIndex(k);
+      for (std::size_t i = l.offset; i < l.offset + l.size; ++i) {
+        const int f = layout.free_of[i];
+        if (f < 0) continue;
+        const std::size_t s = slot_[std::size_t(f)];
+        if (std::find(l.lanes.begin(), l.lanes.end(), s) == l.lanes.end()) l.lanes.push_back(s);
+      }
+      const std::size_t lanes = l.lanes.size();
+      l.jet = lanes <= 4 ? 4 : lanes <= 8 ? 8 : lanes <= 16 ? 16 : 32;
+      smaller = smaller || l.jet < jet_;
+      const Model lobe = m->LobeAlone(k);
+      if (l.jet == 4) l.b4 = MakeJet4(lobe);
+      if (l.jet == 8) l.b8 = MakeJet8(lobe);
+      if (l.jet == 16) l.b16 = MakeJet16(lobe);
+      if (l.jet == 32) l.b32 = MakeJet32(lobe);
+      lobes_.push_back(std::move(l));
+    }
+    if (!smaller) lobes_.clear();  // every lobe needs the sum's Jet: nothing to gain
+  }
   if (o.instrument) {
     const synth::QuadratureSettings& settings = o.instrument->quadrature;
     const int order = o.aperture_order > 0 ? o.aperture_order : settings.order;
@@ -189,15 +215,80 @@ bool Engine::EvalJacobian(const double* u, const Prepared& d, std::size_t begin,
   }
 }
 
+namespace {
+// A parameter of the sum (derivatives by the sum's slots) as one of a lobe's
+// (derivatives by the lobe's lanes, lanes[k] the sum's slot of lane k).
+template <int M, int N>
+Jet<M> ToLanes(const Jet<N>& p, const std::vector<std::size_t>& lanes) {
+  Jet<M> out(p.a);
+  for (std::size_t k = 0; k < lanes.size(); ++k) out.v[Eigen::Index(k)] = p.v[Eigen::Index(lanes[k])];
+  return out;
+}
+
+template <int M, int N>
+void AddLobe(const Bxdf<Jet<M>>& b, const Jet<M>* p, const std::vector<std::size_t>& lanes, const Jet<N>* weight,
+             const Eigen::Vector3d& wi, const Eigen::Vector3d& wo, Rgb<Jet<N>>& f) {
+  const Rgb<Jet<M>> g = b.Eval(p, Vec3<Jet<M>>(wi.cast<Jet<M>>()), Vec3<Jet<M>>(wo.cast<Jet<M>>()));
+  // f += w g, with d(w g) = g dw + w dg and dg on the lobe's lanes only.
+  const double w = weight ? weight->a : 1.0;
+  for (int c = 0; c < 3; ++c) {
+    f[c].a += w * g[c].a;
+    if (weight) f[c].v += g[c].a * weight->v;
+    for (std::size_t k = 0; k < lanes.size(); ++k) f[c].v[Eigen::Index(lanes[k])] += w * g[c].v[Eigen::Index(k)];
+  }
+}
+}  // namespace
+
+template <int N>
+Engine::LobeParams Engine::ToLobes(const Jet<N>* pj) const {
+  LobeParams lp;
+  for (const LobeJet& l : lobes_) {
+    const auto fill = [&](auto& v, auto tag) {
+      constexpr int M = decltype(tag)::value;
+      lp.base.push_back(v.size());
+      for (std::size_t i = 0; i < l.size; ++i) v.push_back(ToLanes<M>(pj[l.offset + i], l.lanes));
+    };
+    if (l.jet == 4) fill(lp.p4, std::integral_constant<int, 4>());
+    if (l.jet == 8) fill(lp.p8, std::integral_constant<int, 8>());
+    if (l.jet == 16) fill(lp.p16, std::integral_constant<int, 16>());
+    if (l.jet == 32) fill(lp.p32, std::integral_constant<int, 32>());
+  }
+  return lp;
+}
+
+template <int N>
+Rgb<Jet<N>> Engine::SumOfLobes(const LobeParams& lp, const Jet<N>* pj, const Eigen::Vector3d& wi,
+                               const Eigen::Vector3d& wo) const {
+  Rgb<Jet<N>> f = Rgb<Jet<N>>::Constant(Jet<N>(0.0));
+  for (std::size_t k = 0; k < lobes_.size(); ++k) {
+    const LobeJet& l = lobes_[k];
+    const Jet<N>* w = l.weight < 0 ? nullptr : pj + l.weight;
+    const std::size_t at = lp.base[k];
+    if (l.jet == 4) AddLobe(*l.b4, lp.p4.data() + at, l.lanes, w, wi, wo, f);
+    if (l.jet == 8) AddLobe(*l.b8, lp.p8.data() + at, l.lanes, w, wi, wo, f);
+    if (l.jet == 16) AddLobe(*l.b16, lp.p16.data() + at, l.lanes, w, wi, wo, f);
+    if (l.jet == 32) AddLobe(*l.b32, lp.p32.data() + at, l.lanes, w, wi, wo, f);
+  }
+  return f;
+}
+
 template <int N>
 bool Engine::EvalJet(const Bxdf<Jet<N>>& b, const double* u, const Prepared& d, std::size_t begin,
                      std::size_t end, double* r, double* jac) const {
   std::array<Jet<N>, 64> uj, pj;
   for (std::size_t k = 0; k < nf_; ++k) uj[k] = Jet<N>(u[k], static_cast<int>(slot_[k]));
   ToUser(uj.data(), pj.data());
+  // Lobe by lobe where the sum has them (not through an instrument's apertures).
+  const bool by_lobe = !lobes_.empty() && !quad_ && !ladder_;
+  const LobeParams lp = by_lobe ? ToLobes(pj.data()) : LobeParams{};
   for (std::size_t q = begin; q < end; ++q) {
     Jet<N> res[3];
-    SampleResiduals(b, pj.data(), d, q, true, res);
+    if (by_lobe) {
+      const Eigen::Vector3d wi = d.Wi(q), wo = d.Wo(q);
+      ResidualsOf(SumOfLobes(lp, pj.data(), wi, wo), d, q, wi.z(), true, res);
+    } else {
+      SampleResiduals(b, pj.data(), d, q, true, res);
+    }
     for (int c = 0; c < 3; ++c) {
       const std::size_t row = 3 * (q - begin) + c;
       r[row] = res[c].a;

@@ -69,6 +69,9 @@ struct Prepared {
   // Every direction of the rows has unit length to rounding (the readers'
   // do); else each is normalised where it is read.
   bool unit = true;
+  // A subset's own copy of its rows (data then points at it): its passes
+  // read them one after another, not scattered over the whole table.
+  std::shared_ptr<const Dataset> rows;
   std::size_t size() const { return index.size(); }
   const Sample& Row(std::size_t q) const { return data->samples[index[q]]; }
   Eigen::Vector3d Wi(std::size_t q) const { return unit ? Row(q).wi : Row(q).wi.normalized(); }
@@ -225,6 +228,33 @@ class Engine {
   template <int N>
   bool EvalJet(const Bxdf<Jet<N>>& b, const double* u, const Prepared& d, std::size_t begin, std::size_t end,
                double* r, double* jac) const;
+  // A lobe of a sum differentiated on a Jet of its own derivative slots: a
+  // lobe depends on a few of the sum's parameters, and a Jet of all of them
+  // carries zeros through every operation of every lobe.
+  struct LobeJet {
+    std::size_t offset = 0, size = 0;  // the lobe's packed parameters
+    std::ptrdiff_t weight = -1;        // packed index of its weight in the sum, or -1
+    std::vector<std::size_t> lanes;    // the sum's derivative slot of each of the lobe's own
+    int jet = 4;
+    std::unique_ptr<Bxdf<Jet<4>>> b4;
+    std::unique_ptr<Bxdf<Jet<8>>> b8;
+    std::unique_ptr<Bxdf<Jet<16>>> b16;
+    std::unique_ptr<Bxdf<Jet<32>>> b32;
+  };
+  // The parameters of every lobe on its own Jets, from the sum's (pj).
+  struct LobeParams {
+    std::vector<Jet<4>> p4;
+    std::vector<Jet<8>> p8;
+    std::vector<Jet<16>> p16;
+    std::vector<Jet<32>> p32;
+    std::vector<std::size_t> base;  // of each lobe, in the vector of its Jet size
+  };
+  template <int N>
+  LobeParams ToLobes(const Jet<N>* pj) const;
+  // f_r of the sum at user parameters pj, lobe by lobe.
+  template <int N>
+  Rgb<Jet<N>> SumOfLobes(const LobeParams& lp, const Jet<N>* pj, const Eigen::Vector3d& wi,
+                         const Eigen::Vector3d& wo) const;
 
   Metric metric_;
   Loss loss_;
@@ -242,6 +272,7 @@ class Engine {
   std::unique_ptr<Bxdf<Jet<8>>> b8_;
   std::unique_ptr<Bxdf<Jet<16>>> b16_;
   std::unique_ptr<Bxdf<Jet<32>>> b32_;
+  std::vector<LobeJet> lobes_;  // a sum whose lobes need smaller Jets than the sum; else empty
   std::unique_ptr<synth::ApertureQuadrature> quad_;  // a fixed aperture order
   std::unique_ptr<synth::ApertureLadder> ladder_;    // the automatic order: per-pair rules (MeasureAdaptive)
   double tolerance_ = 0;                              // of the automatic order

@@ -144,18 +144,24 @@ Prepared Prepare(const Dataset& data, const std::vector<std::size_t>& index, con
 
 Prepared Rows(const Prepared& p, const std::vector<std::size_t>& rows) {
   Prepared out;
-  out.data = p.data;
+  auto own = std::make_shared<Dataset>();
+  own->has_sigma = p.data->has_sigma;
+  own->source = p.data->source;
+  own->samples.reserve(rows.size());
   out.unit = p.unit;
   out.index.reserve(rows.size());
   out.target.reserve(rows.size());
   out.w_fit.reserve(rows.size());
   if (!p.w_metric.empty()) out.w_metric.reserve(rows.size());
   for (std::size_t q : rows) {
-    out.index.push_back(p.index[q]);
+    out.index.push_back(own->samples.size());
+    own->samples.push_back(p.Row(q));
     out.target.push_back(p.target[q]);
     out.w_fit.push_back(p.w_fit[q]);
     if (!p.w_metric.empty()) out.w_metric.push_back(p.w_metric[q]);
   }
+  out.data = own.get();
+  out.rows = std::move(own);
   return out;
 }
 
