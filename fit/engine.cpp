@@ -12,6 +12,11 @@
 
 namespace brdfkit::fit {
 
+namespace {
+// The Jet size (of those the models are compiled for) that holds `slots` derivative slots.
+int JetSize(std::size_t slots) { return slots <= 4 ? 4 : slots <= 8 ? 8 : slots <= 16 ? 16 : 32; }
+}  // namespace
+
 Engine::Engine(const Evaluators& model, const Options& o, double loss_scale, const Layout& layout)
     : metric_(o.metric), loss_(o.loss), loss_scale_(loss_scale), layout_(layout) {
   const ModelInfo& info = model.Info();
@@ -51,7 +56,7 @@ Engine::Engine(const Evaluators& model, const Options& o, double loss_scale, con
   if (n_slots_ > 32 || n_ > 64)
     throw std::invalid_argument("model '" + info.name + "' has " + std::to_string(nf_) +
                                 " free parameters; fitting supports at most 32 (and 64 packed values)");
-  jet_ = n_slots_ <= 4 ? 4 : n_slots_ <= 8 ? 8 : n_slots_ <= 16 ? 16 : 32;
+  jet_ = JetSize(n_slots_);
   if (jet_ == 4) b4_ = model.MakeJet4();
   if (jet_ == 8) b8_ = model.MakeJet8();
   if (jet_ == 16) b16_ = model.MakeJet16();
@@ -69,8 +74,7 @@ Engine::Engine(const Evaluators& model, const Options& o, double loss_scale, con
         const std::size_t s = slot_[std::size_t(f)];
         if (std::find(l.lanes.begin(), l.lanes.end(), s) == l.lanes.end()) l.lanes.push_back(s);
       }
-      const std::size_t lanes = l.lanes.size();
-      l.jet = lanes <= 4 ? 4 : lanes <= 8 ? 8 : lanes <= 16 ? 16 : 32;
+      l.jet = JetSize(l.lanes.size());
       smaller = smaller || l.jet < jet_;
       const Model lobe = m->LobeAlone(k);
       if (l.jet == 4) l.b4 = MakeJet4(lobe);
