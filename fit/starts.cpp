@@ -294,7 +294,7 @@ class StartSearch {
     for (const Candidate& c : solved) {
       // The best four distinct subset optima: each costs a pass over all samples.
       if (distinct.size() == 4) break;
-      if (Contains(plain, distinct, c.p)) continue;
+      if (Contains(plain, distinct, c.p) || InSubSum(c.p, active, kids)) continue;
       distinct.push_back(c);
       candidates.push_back({c.p, FullCost(plain, c.p), c.origin + " (subset optimum)"});
     }
@@ -359,6 +359,41 @@ class StartSearch {
       if (kid.cost < final_cost && (!better || kid.cost < better->cost)) better = kid;
     }
     return better;
+  }
+
+  // Whether user parameters p are a point of a sub-sum among the nested
+  // `kids`, whose own search covers its basin: one of the `active` lobes
+  // switched off, or two active copies of a lobe alike in every parameter
+  // but their switches (within 1e-3, relative for widths), which add up to
+  // one lobe.
+  bool InSubSum(const std::vector<double>& p, const std::vector<std::size_t>& active,
+                const std::vector<std::pair<Candidate, std::size_t>>& kids) const {
+    const auto has_kid = [&](std::size_t k) {
+      return untouched_[k] && std::any_of(kids.begin(), kids.end(), [&](const auto& kid) {
+               return model_.LobeInfo(kid.second).name == model_.LobeInfo(k).name;
+             });
+    };
+    for (std::size_t a : active) {
+      if (!has_kid(a)) continue;
+      if (SwitchedOff(1u << a, p)) return true;
+      for (std::size_t b : active)
+        if (b > a && untouched_[b] && model_.LobeInfo(b).name == model_.LobeInfo(a).name && Alike(p, a, b))
+          return true;
+    }
+    return false;
+  }
+
+  // Whether copies a and b of one lobe have the same parameters in p, but
+  // for their switches (within 1e-3, relative for log-scale parameters).
+  bool Alike(const std::vector<double>& p, std::size_t a, std::size_t b) const {
+    const std::vector<std::size_t> qa = LobeSlots(model_, a), qb = LobeSlots(model_, b), sw = SwitchSlots(model_, a);
+    for (std::size_t i = 0; i < qa.size(); ++i) {
+      if (std::find(sw.begin(), sw.end(), qa[i]) != sw.end()) continue;
+      const double x = p[qa[i]], y = p[qb[i]];
+      const double d = log_scale_[qa[i]] ? std::abs(std::log(x / y)) : std::abs(x - y);
+      if (!(d < 1e-3)) return false;
+    }
+    return true;
   }
 
   // Cost of user parameters p on all samples, without a robust loss.

@@ -105,6 +105,36 @@ TEST(FitMaterials, SetIsWellFormed) {
   }
 }
 
+// The subset optima that the start search costs on all samples (before
+// refinement) are
+// functions of every lobe: none has a lobe switched off, nor two copies of
+// the GGX lobe alike in alpha and f0 (adding up to one lobe). Such points
+// belong to a nested sub-sum, which the search covers on its own.
+void ExpectSubsetOptimaUseEveryLobe(const Model& model, const Result& r) {
+  const std::size_t L = model.LobeCount();
+  for (const fit::LocalOptimum& o : r.local_optima) {
+    // As costed; a refinement may then switch a lobe off.
+    const std::string tag = "(subset optimum)";
+    if (o.origin.size() < tag.size() || o.origin.compare(o.origin.size() - tag.size(), tag.size(), tag) != 0) continue;
+    SCOPED_TRACE(o.origin);
+    for (std::size_t k = 0; k < L; ++k) {
+      const std::size_t at = model.LobeOffset(k);
+      if (model.LobeWeightIndex(k) >= 0)
+        EXPECT_GT(o.params[std::size_t(model.LobeWeightIndex(k))], 0) << model.LobePrefix(k) << " is off";
+      else
+        EXPECT_GT(o.params[at] + o.params[at + 1] + o.params[at + 2], 0) << model.LobePrefix(k) << " is off";
+    }
+    for (std::size_t a = 1; a < L; ++a)
+      for (std::size_t b = a + 1; b < L; ++b) {
+        // ggx packs alpha, then f0 (r, g, b).
+        const std::size_t pa = model.LobeOffset(a), pb = model.LobeOffset(b);
+        double d = std::abs(std::log(o.params[pa] / o.params[pb]));
+        for (int c = 1; c <= 3; ++c) d = std::max(d, std::abs(o.params[pa + c] - o.params[pb + c]));
+        EXPECT_GE(d, 1e-3) << model.LobePrefix(a) << " and " << model.LobePrefix(b) << " are one lobe";
+      }
+  }
+}
+
 class FitMaterial : public ::testing::TestWithParam<std::size_t> {};
 
 // Lambert plus 1, 2 and 3 GGX lobes under one metric per material (the
@@ -130,6 +160,7 @@ TEST_P(FitMaterial, NestsAndReachesTheBruteForceOptimum) {
     EXPECT_TRUE(std::isfinite(r.cost));
     EXPECT_LE(r.cost, previous * (1 + 1e-9)) << "a lobe more fits worse";
     previous = r.cost;
+    ExpectSubsetOptimaUseEveryLobe(model, r);
     // The brute force for one and two lobes (three would take minutes):
     // 12 random starts a lobe, each solved to convergence on all samples.
     if (lobes == 3) continue;
