@@ -106,10 +106,10 @@ TEST(FitMaterials, SetIsWellFormed) {
 }
 
 // The subset optima that the start search costs on all samples (before
-// refinement) are
-// functions of every lobe: none has a lobe switched off, nor two copies of
-// the GGX lobe alike in alpha and f0 (adding up to one lobe). Such points
-// belong to a nested sub-sum, which the search covers on its own.
+// refinement) are functions of every lobe: none has a lobe switched off,
+// nor two copies of the GGX lobe alike in alpha and f0 (adding up to one
+// lobe). Such points belong to a nested sub-sum, which the search covers
+// on its own.
 void ExpectSubsetOptimaUseEveryLobe(const Model& model, const Result& r) {
   const std::size_t L = model.LobeCount();
   for (const fit::LocalOptimum& o : r.local_optima) {
