@@ -3,7 +3,6 @@
 // vectorised kernels this processor has (brdf/batch.h). The measured models
 // read from files other than MERL's (rgl, utia, astm) are left to the
 // generic loop's test through merl: their writers live in formats/.
-#include <ceres/jet.h>
 #include <gtest/gtest.h>
 
 #include <limits>
@@ -13,6 +12,7 @@
 #include "brdf/params.h"
 #include "tests/known_merl.h"
 #include "tests/test_util.h"
+#include "validate/jet_models.h"
 
 namespace brdfkit {
 namespace {
@@ -165,7 +165,7 @@ TEST(BatchEvalKernels, ClosedForms) {
 
 // ceres::Jet takes the generic loop: values and derivatives as Eval's.
 TEST(BatchEvalKernels, JetTakesTheGenericLoop) {
-  using Jet = ceres::Jet<double, 2>;
+  using Jet = JetN<4>;
   const Model model = Model::Parse("ggx");
   const auto b = model.Make<Jet>();
   std::vector<Jet> p = {Jet(0.3, 0), Jet(0.5, 1), Jet(0.5), Jet(0.5)};

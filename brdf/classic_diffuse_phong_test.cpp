@@ -1,7 +1,6 @@
 // Oren-Nayar (qualitative and Fujii), Phong (original and modified),
 // Blinn-Phong and Lafortune: closed forms, published values, equalities
 // between models, the documented failures of phong_original and sampling.
-#include <ceres/jet.h>
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -14,6 +13,7 @@
 #include "brdf/model.h"
 #include "brdf/params.h"
 #include "brdf/quadrature.h"
+#include "validate/jet_models.h"
 #include "validate/sampling_check.h"
 
 namespace brdfkit {
@@ -159,7 +159,7 @@ TEST(OrenNayar, AlbedoMatchesClosedFormAndExceedsRhoAtGrazingForSmallSigma) {
 }
 
 TEST(OrenNayar, DoubleGrazingGuardKeepsValuesAndDerivativesFinite) {
-  using J = ceres::Jet<double, 4>;
+  using J = JetN<4>;
   const Model on = Model::Parse("oren_nayar");
   const std::vector<double> p = Params(on, "albedo=0.5,sigma=0.5");
   const double mu = 1e-12, s = std::sqrt(1 - mu * mu);
@@ -445,7 +445,7 @@ TEST(Lafortune, SumOfLobesIsTheSumWithNumberedNames) {
 // --- all six ---------------------------------------------------------------------
 
 TEST(ClassicModels, InfoFlagsAndExtremesStayFinite) {
-  using J = ceres::Jet<double, 8>;
+  using J = JetN<8>;
   struct Case {
     std::string name;
     bool reciprocal, energy_conserving;

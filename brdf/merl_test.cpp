@@ -3,7 +3,6 @@
 // cannot be downloaded here), so every expected value is known exactly.
 #include "brdf/merl.h"
 
-#include <ceres/jet.h>
 #include <gtest/gtest.h>
 
 #include <array>
@@ -16,6 +15,7 @@
 
 #include "brdf/model.h"
 #include "brdf/params.h"
+#include "validate/jet_models.h"
 
 namespace brdfkit {
 namespace {
@@ -521,7 +521,7 @@ TEST_F(MerlFile, ModelEvaluatesTheTable) {
   for (const ModelInfo& i : RegisteredModelInfos()) registered = registered || i.name == "merl";
   EXPECT_TRUE(registered);
 
-  using Jet = ceres::Jet<double, 2>;
+  using Jet = JetN<4>;
   const auto bn = nearest.Make<double>();
   const auto bt = tri.Make<double>();
   const auto bf = nearest.Make<float>();

@@ -2,7 +2,6 @@
 // sample reads rho/pi through any apertures, finite apertures give the
 // cosine-weighted cone average (checked against an independent cubature),
 // and the forward model differentiates through ceres::Jet.
-#include <ceres/jet.h>
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -13,6 +12,7 @@
 #include "data_synth/forward_model.h"
 #include "data_synth/synth.h"
 #include "brdf/quadrature.h"
+#include "validate/jet_models.h"
 
 namespace brdfkit::synth {
 namespace {
@@ -428,7 +428,7 @@ TEST(ForwardModel, TiltedSampleChangesTheProjectedFlux) {
 }
 
 TEST(ForwardModel, DifferentiatesThroughJets) {
-  using J = ceres::Jet<double, 2>;
+  using J = JetN<4>;
   const Model model = Model::Parse("ggx");
   const auto bd = model.Make<double>();
   const auto bj = model.Make<J>();

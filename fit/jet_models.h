@@ -1,18 +1,16 @@
-// Run-time models on ceres::Jet scalars of the sizes the fitter uses. Kept
-// in their own translation unit: instantiating every registered model for
-// four Jet sizes is the slow part of compiling the fitter.
+// Run-time models on ceres::Jet scalars of the sizes the fitter uses
+// (compiled once in brdfkit::validate, see validate/jet_models.h).
 #pragma once
-
-#include <ceres/jet.h>
 
 #include <memory>
 
 #include "brdf/model.h"
+#include "validate/jet_models.h"
 
 namespace brdfkit::fit {
 
 template <int N>
-using Jet = ceres::Jet<double, N>;
+using Jet = JetN<N>;
 
 std::unique_ptr<Bxdf<Jet<4>>> MakeJet4(const Model& model);
 std::unique_ptr<Bxdf<Jet<8>>> MakeJet8(const Model& model);

@@ -1,6 +1,5 @@
 // Properties every registered model must have. Parameterised over the
 // registry, so a newly registered model is covered with no new test code.
-#include <ceres/jet.h>
 #include <gtest/gtest.h>
 
 #include <filesystem>
@@ -10,12 +9,14 @@
 #include "brdf/params.h"
 #include "tests/model_settings.h"
 #include "tests/test_util.h"
+#include "validate/jet_models.h"
 #include "validate/sampling_check.h"
 
 namespace brdfkit {
 namespace {
 
-using Jet1 = ceres::Jet<double, 1>;
+// One direction is seeded; the size is one compiled once (validate/jet_models.h).
+using J = JetN<4>;
 
 std::vector<std::string> ModelNames() {
   std::vector<std::string> names;
@@ -55,7 +56,7 @@ TEST_P(ModelProperties, FiniteAndNonNegative) {
   std::mt19937_64 rng(11);
   const auto bd = model_->Make<double>();
   const auto bf = model_->Make<float>();
-  const auto bj = model_->Make<Jet1>();
+  const auto bj = model_->Make<J>();
   std::vector<std::vector<double>> param_sets = {info_.Defaults()};
   for (int k = 0; k < 6; ++k) param_sets.push_back(test::RandomParams(info_, rng, 0.0));
   // The bounds themselves.
@@ -75,7 +76,7 @@ TEST_P(ModelProperties, FiniteAndNonNegative) {
   int bad = 0;
   for (const auto& p : param_sets) {
     const std::vector<float> pf(p.begin(), p.end());
-    std::vector<Jet1> pj(p.begin(), p.end());
+    std::vector<J> pj(p.begin(), p.end());
     for (auto& x : pj) x.v[0] = 1.0;  // derivative along the all-ones direction
     for (const auto& wi : dirs) {
       std::vector<Eigen::Vector3d> wos = {wi, Reflect(Eigen::Vector3d(wi)), Eigen::Vector3d(-wi.x(), -wi.y(), wi.z()),
@@ -83,7 +84,7 @@ TEST_P(ModelProperties, FiniteAndNonNegative) {
       for (const auto& wo : wos) {
         const Rgb<double> fd = bd->Eval(p.data(), wi, wo);
         const Rgb<float> ff = bf->Eval(pf.data(), wi.cast<float>(), wo.cast<float>());
-        const Rgb<Jet1> fj = bj->Eval(pj.data(), wi.cast<Jet1>(), wo.cast<Jet1>());
+        const Rgb<J> fj = bj->Eval(pj.data(), wi.cast<J>(), wo.cast<J>());
         for (int c = 0; c < 3; ++c) {
           const bool ok = std::isfinite(fd[c]) && fd[c] >= 0 && std::isfinite(ff[c]) && ff[c] >= 0 &&
                           std::isfinite(fj[c].a) && std::isfinite(fj[c].v[0]);
@@ -187,7 +188,7 @@ TEST_P(ModelProperties, ReciprocalWhereClaimed) {
 TEST_P(ModelProperties, JetDerivativesMatchFiniteDifferences) {
   std::mt19937_64 rng(3);
   const auto bd = model_->Make<double>();
-  const auto bj = model_->Make<Jet1>();
+  const auto bj = model_->Make<J>();
   const std::size_t n = info_.PackedSize();
   int compared = 0, skipped = 0, failures = 0;
   for (int trial = 0; trial < 30; ++trial) {
@@ -195,9 +196,9 @@ TEST_P(ModelProperties, JetDerivativesMatchFiniteDifferences) {
     const Eigen::Vector3d wi = test::RandomUpperDirection(rng), wo = test::RandomUpperDirection(rng);
     const Rgb<double> f0 = bd->Eval(p.data(), wi, wo);
     for (std::size_t j = 0; j < n; ++j) {
-      std::vector<Jet1> pj(p.begin(), p.end());
+      std::vector<J> pj(p.begin(), p.end());
       pj[j].v[0] = 1.0;
-      const Rgb<Jet1> fj = bj->Eval(pj.data(), wi.cast<Jet1>(), wo.cast<Jet1>());
+      const Rgb<J> fj = bj->Eval(pj.data(), wi.cast<J>(), wo.cast<J>());
       auto fd_at = [&](double h) {
         std::vector<double> a = p, b = p;
         a[j] += h;

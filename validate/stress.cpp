@@ -1,7 +1,5 @@
 #include "validate/stress.h"
 
-#include <ceres/jet.h>
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -13,13 +11,15 @@
 #include "brdf/params.h"
 #include "validate/albedo.h"
 #include "validate/integrators.h"
+#include "validate/jet_models.h"
 
 namespace brdfkit::validate {
 namespace {
 
-// Derivatives are seeded in chunks of this many packed parameters.
+// Derivatives are seeded in chunks of this many packed parameters (a size
+// compiled once, validate/jet_models.h).
 constexpr int kJetSize = 8;
-using Jet = ceres::Jet<double, kJetSize>;
+using Jet = JetN<kJetSize>;
 
 struct Point {
   std::vector<double> p;
