@@ -17,7 +17,6 @@ namespace {
 using namespace brdfkit;
 using namespace brdfkit::synth;
 
-constexpr double kDeg = kPi / 180;
 
 Instrument MerlInstrument(double source_deg, double detector_deg) {
   Instrument inst = DefaultInstrument();

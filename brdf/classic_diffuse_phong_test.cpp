@@ -12,6 +12,7 @@
 
 #include "brdf/model.h"
 #include "brdf/params.h"
+#include "tests/test_util.h"
 #include "brdf/quadrature.h"
 #include "validate/jet_models.h"
 #include "validate/sampling_check.h"
@@ -19,16 +20,14 @@
 namespace brdfkit {
 namespace {
 
-Eigen::Vector3d Dir(double theta, double phi) {
-  return Eigen::Vector3d(std::sin(theta) * std::cos(phi), std::sin(theta) * std::sin(phi), std::cos(theta));
-}
+using test::DirectionFromAngles;
 
 // cos(theta) uniform; one draw per statement (the order of a call's
 // arguments is unspecified), phi first.
 template <class U, class R>
 Eigen::Vector3d RandomDir(U& u, R& rng) {
   const double phi = 2 * kPi * u(rng);
-  return Dir(std::acos(u(rng)), phi);
+  return DirectionFromAngles(std::acos(u(rng)), phi);
 }
 
 // Composite Gauss-Legendre over the pieces between consecutive breaks.
@@ -68,10 +67,10 @@ std::vector<double> BothEndsGraded(double finest) {
 double Albedo(const Bxdf<double>& b, const double* p, double theta_o, const std::vector<double>& theta_breaks,
               const std::vector<double>& phi_breaks, int nodes) {
   const GaussLegendre gl(nodes);
-  const Eigen::Vector3d wo = Dir(theta_o, 0);
+  const Eigen::Vector3d wo = DirectionFromAngles(theta_o, 0);
   return Integrate(gl, theta_breaks, [&](double t) {
     const double inner =
-        Integrate(gl, phi_breaks, [&](double phi) { return b.Eval(p, Dir(t, phi), wo)[0]; });
+        Integrate(gl, phi_breaks, [&](double phi) { return b.Eval(p, DirectionFromAngles(t, phi), wo)[0]; });
     return inner * std::cos(t) * std::sin(t);
   });
 }
@@ -328,7 +327,7 @@ TEST(PhongOriginal, IsNotReciprocalAndReflectsMoreThanItReceives) {
   // theta_i = 60 deg, theta_o = 30 deg in the plane of incidence, opposite
   // sides: cos(alpha) = cos 30 deg, so cos^10 = 0.75^5.
   const std::vector<double> p = Params(m, "ks=0.5,n=10");
-  const Eigen::Vector3d wi = Dir(kPi / 3, 0), wo = Dir(kPi / 6, kPi);
+  const Eigen::Vector3d wi = DirectionFromAngles(kPi / 3, 0), wo = DirectionFromAngles(kPi / 6, kPi);
   const double forward = b->Eval(p.data(), wi, wo)[0], backward = b->Eval(p.data(), wo, wi)[0];
   EXPECT_NEAR(forward, 0.5 * 0.2373046875 / 0.5, 1e-14);
   EXPECT_NEAR(backward, 0.5 * 0.2373046875 / (std::sqrt(3.0) / 2), 1e-14);
@@ -398,8 +397,9 @@ TEST(Lafortune, PaperParameterisationMapsAsDocumented) {
   const auto b = m.Make<double>();
   const double rho = 2 * kPi / 5 * std::pow(0.9, 3);
   const std::vector<double> p = Params(m, "rho=" + FormatDouble(rho) + ",cx=-1,cy=-1,cz=" + FormatDouble(0.7 / 0.9) + ",n=3");
-  for (const auto& [wi, wo] : {std::pair{Dir(0.3, 0.1), Dir(0.5, 3.0)}, std::pair{Dir(1.2, 2.0), Dir(0.1, -1.0)},
-                               std::pair{Dir(0.9, 0.0), Dir(0.9, kPi)}}) {
+  for (const auto& [wi, wo] : {std::pair{DirectionFromAngles(0.3, 0.1), DirectionFromAngles(0.5, 3.0)},
+                               std::pair{DirectionFromAngles(1.2, 2.0), DirectionFromAngles(0.1, -1.0)},
+                               std::pair{DirectionFromAngles(0.9, 0.0), DirectionFromAngles(0.9, kPi)}}) {
     const double base = -0.9 * wi.x() * wo.x() - 0.9 * wi.y() * wo.y() + 0.7 * wi.z() * wo.z();
     EXPECT_NEAR(b->Eval(p.data(), wi, wo)[0], std::pow(std::max(base, 0.0), 3), 1e-14);
   }
@@ -430,7 +430,7 @@ TEST(Lafortune, SumOfLobesIsTheSumWithNumberedNames) {
   const std::vector<double> p =
       Params(sum, "lafortune.rho=0.3,lafortune.n=40,lafortune#2.cx=0.7,lafortune#2.cy=0.7,lafortune#2.cz=0.7,"
                   "lafortune#2.n=2,lafortune#2.rho=0.2:0.3:0.4");
-  const Eigen::Vector3d wi = Dir(0.5, 0.2), wo = Dir(0.6, 3.0);
+  const Eigen::Vector3d wi = DirectionFromAngles(0.5, 0.2), wo = DirectionFromAngles(0.6, 3.0);
   const Rgb<double> expected =
       one.Make<double>()->Eval(p.data(), wi, wo) + one.Make<double>()->Eval(p.data() + 7, wi, wo);
   const Rgb<double> got = sum.Make<double>()->Eval(p.data(), wi, wo);
@@ -470,7 +470,8 @@ TEST(ClassicModels, InfoFlagsAndExtremesStayFinite) {
       }
     }
     const double g = 1e-12, s = std::sqrt(1 - g * g);
-    const std::vector<Eigen::Vector3d> dirs = {{0, 0, 1}, {s, 0, g}, {-s, 0, g}, {0, s, g}, Dir(0.7, 2.0), Dir(1e-9, 0)};
+    const std::vector<Eigen::Vector3d> dirs = {{0, 0, 1}, {s, 0, g}, {-s, 0, g}, {0, s, g},
+                                               DirectionFromAngles(0.7, 2.0), DirectionFromAngles(1e-9, 0)};
     for (const auto& p : sets) {
       const std::vector<float> pf(p.begin(), p.end());
       std::vector<J> pj(p.size());
@@ -521,7 +522,7 @@ TEST(ClassicModels, SamplingMatchesPdf) {
       opt.samples = 100000;
       opt.quadrature = 10;
       opt.seed = 23;
-      const auto r = validate::CheckSampling(*b, p.data(), Dir(theta_deg * kPi / 180, 0.9), opt);
+      const auto r = validate::CheckSampling(*b, p.data(), DirectionFromAngles(theta_deg * kPi / 180, 0.9), opt);
       EXPECT_EQ(r.nonfinite, 0);
       EXPECT_EQ(r.pdf_mismatch, 0);
       EXPECT_GT(r.valid_fraction, 0.05);

@@ -11,6 +11,7 @@
 #include "brdf/ashikhmin_shirley.h"
 #include "brdf/model.h"
 #include "brdf/params.h"
+#include "tests/test_util.h"
 #include "brdf/torrance_sparrow.h"
 #include "brdf/ward.h"
 #include "brdf/quadrature.h"
@@ -21,9 +22,7 @@ namespace {
 
 using Jet1 = ceres::Jet<double, 1>;
 
-Eigen::Vector3d Dir(double theta, double phi) {
-  return Eigen::Vector3d(std::sin(theta) * std::cos(phi), std::sin(theta) * std::sin(phi), std::cos(theta));
-}
+using test::DirectionFromAngles;
 
 // Panel breaks in an angle from 0 to `end`: geometric from `scale` / 64 up,
 // so a lobe of angular width `scale` (down to 1e-7) is resolved.
@@ -62,12 +61,12 @@ double IntegrateAroundNormal(const std::function<double(double, double)>& g, dou
 // R cos(2 theta_h - delta) with delta = atan2(sin t_o cos phi_h, cos t_o), so
 // the horizon is the curve theta_h = (delta + pi/2) / 2: integrated exactly.
 Rgb<double> Albedo(const Bxdf<double>& b, const std::vector<double>& p, double theta_o, double scale) {
-  const Eigen::Vector3d wo = Dir(theta_o, 0);
+  const Eigen::Vector3d wo = DirectionFromAngles(theta_o, 0);
   Rgb<double> e = Rgb<double>::Zero();
   for (int c = 0; c < 3; ++c) {
     e[c] = IntegrateAroundNormal(
         [&](double th, double ph) {
-          const Eigen::Vector3d h = Dir(th, ph);
+          const Eigen::Vector3d h = DirectionFromAngles(th, ph);
           const double wo_h = wo.dot(h);
           const Eigen::Vector3d wi = 2 * wo_h * h - wo;
           if (wi.z() <= 0 || wo_h <= 0) return 0.0;
@@ -118,7 +117,7 @@ TEST(ClassicSpecular, DistributionsIntegrateToOne) {
       ASSERT_NE(mf, nullptr);
       EXPECT_FALSE(mf->HasSmithG1()) << "V-groove G is not a Smith masking function";
       const double norm = IntegrateAroundNormal(
-          [&](double th, double ph) { return mf->D(b.params.data(), Dir(th, ph)) * std::cos(th); }, m);
+          [&](double th, double ph) { return mf->D(b.params.data(), DirectionFromAngles(th, ph)) * std::cos(th); }, m);
       EXPECT_NEAR(norm, 1.0, 1e-10) << name << " m = " << m;
     }
   }
@@ -135,7 +134,7 @@ TEST(ClassicSpecular, TorranceSparrowPeakMatchesDawsonClosedForm) {
     EXPECT_NEAR(ts.D(p, Eigen::Vector3d(0, 0, 1)), expected, 2e-14 * expected) << "m = " << m;
     // And off the peak, the Gaussian in the angle itself.
     const double theta = 1.3 * m;
-    EXPECT_NEAR(ts.D(p, Dir(theta, 0.4)), expected * std::exp(-1.69), 1e-13 * expected) << "m = " << m;
+    EXPECT_NEAR(ts.D(p, DirectionFromAngles(theta, 0.4)), expected * std::exp(-1.69), 1e-13 * expected) << "m = " << m;
   }
 }
 
@@ -157,8 +156,8 @@ TEST(ClassicSpecular, TorranceSparrowNormalisationDerivative) {
     const double h = 1e-5;
     const double pa[7] = {1, 1, 1, m + h, 1.5, 1.5, 1.5}, pb[7] = {1, 1, 1, m - h, 1.5, 1.5, 1.5};
     for (double theta : {0.0, 0.4, 1.2}) {
-      const Vec3<Jet1> w = Dir(theta, 0.2).cast<Jet1>();
-      const Eigen::Vector3d wd = Dir(theta, 0.2);
+      const Vec3<Jet1> w = DirectionFromAngles(theta, 0.2).cast<Jet1>();
+      const Eigen::Vector3d wd = DirectionFromAngles(theta, 0.2);
       const double fd = (ts.D(pa, wd) - ts.D(pb, wd)) / (2 * h);
       EXPECT_NEAR(ts.D(p, w).v[0], fd, 1e-7 * std::abs(fd) + 1e-12) << "m = " << m << " theta = " << theta;
     }
@@ -173,7 +172,7 @@ TEST(ClassicSpecular, TorranceSparrowApproachesBeckmannForSmallM) {
   for (double m : {1e-3, 1e-2}) {
     const double p[7] = {1, 1, 1, m, 1.5, 1.5, 1.5};
     for (double k : {0.0, 0.5, 1.0, 2.0}) {
-      const Eigen::Vector3d h = Dir(k * m, 1.0);
+      const Eigen::Vector3d h = DirectionFromAngles(k * m, 1.0);
       const double a = ts.D(p, h), b = ct.D(p, h);
       EXPECT_NEAR(a / b, 1.0, 3 * m * m * (1 + k * k * k * k)) << "m = " << m << " k = " << k;
     }
@@ -237,7 +236,7 @@ TEST(ClassicSpecular, WardVariantsRelations) {
   for (double ti : {0.0, 0.3, 0.9, 1.4, 1.55})
     for (double to : {0.1, 0.6, 1.2, 1.5})
       for (double dphi : {0.0, 0.3, 2.0, kPi}) {
-        const Eigen::Vector3d wi = Dir(ti, 0.2), wo = Dir(to, 0.2 + dphi), h = wi + wo;
+        const Eigen::Vector3d wi = DirectionFromAngles(ti, 0.2), wo = DirectionFromAngles(to, 0.2 + dphi), h = wi + wo;
         const double fw = ward.bxdf->Eval(ward.params.data(), wi, wo)[0];
         const double fd = duer.bxdf->Eval(duer.params.data(), wi, wo)[0];
         const double fg = gmd.bxdf->Eval(gmd.params.data(), wi, wo)[0];
@@ -253,7 +252,7 @@ TEST(ClassicSpecular, WardVariantsRelations) {
         EXPECT_NEAR(fw, expected, 1e-9 * expected + 1e-300);
       }
   for (double t : {0.2, 0.8, 1.3, 1.5}) {
-    const Eigen::Vector3d wo = Dir(t, 0.7), wi = Reflect(wo);
+    const Eigen::Vector3d wo = DirectionFromAngles(t, 0.7), wi = Reflect(wo);
     EXPECT_NEAR(gmd.bxdf->Eval(gmd.params.data(), wi, wo)[0], duer.bxdf->Eval(duer.params.data(), wi, wo)[0],
                 1e-12 * duer.bxdf->Eval(duer.params.data(), wi, wo)[0]);
   }
@@ -387,7 +386,7 @@ TEST(ClassicSpecular, SamplingMatchesPdf) {
       validate::SamplingCheckOptions opt;
       opt.samples = 200000;
       opt.seed = 29;
-      const auto r = validate::CheckSampling(*b.bxdf, b.params.data(), Dir(deg * kPi / 180, 0.3), opt);
+      const auto r = validate::CheckSampling(*b.bxdf, b.params.data(), DirectionFromAngles(deg * kPi / 180, 0.3), opt);
       EXPECT_EQ(r.nonfinite, 0);
       EXPECT_EQ(r.pdf_mismatch, 0);
       EXPECT_NEAR(r.pdf_integral, r.valid_fraction, 4 * std::sqrt(r.valid_fraction / opt.samples) + 1e-3);
@@ -406,7 +405,7 @@ TEST(ClassicSpecular, SamplingExtremes) {
   for (const auto& [name, params] : cases) {
     Built b = Build(name, params);
     for (double deg : {0.0, 60.0, 89.9}) {
-      const Eigen::Vector3d wo = Dir(deg * kPi / 180, 1.1);
+      const Eigen::Vector3d wo = DirectionFromAngles(deg * kPi / 180, 1.1);
       int valid = 0;
       for (int i = 0; i < 2000; ++i) {
         const double u1 = (i + 0.5) / 2000, u2 = std::fmod(i * 0.6180339887498949, 1.0);

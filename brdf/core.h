@@ -39,6 +39,7 @@ template <typename T>
 using Rgb = Eigen::Array<T, 3, 1>;
 
 inline constexpr double kPi = 3.14159265358979323846;
+inline constexpr double kDeg = kPi / 180;  // radians per degree
 inline constexpr double kInvPi = 0.31830988618379067154;
 
 // The plain value of a scalar: itself for float/double, the value part of an

@@ -5,6 +5,7 @@
 #include "brdf/core.h"
 
 #include <charconv>
+#include <cstdio>
 #include <cmath>
 #include <sstream>
 #include <string>
@@ -26,6 +27,13 @@ inline std::string FormatDouble(double v) {
   char buf[64];
   auto [ptr, ec] = std::to_chars(buf, buf + sizeof buf, v);
   return std::string(buf, ec == std::errc() ? ptr : buf);
+}
+
+// Six significant digits (printf's %g): numbers in messages and verdicts.
+inline std::string FormatShort(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%g", v);
+  return buf;
 }
 
 // Checks a packed parameter vector against the table: finite and within

@@ -17,7 +17,6 @@ extern const char* const kExplorerCss;
 namespace {
 
 using json = nlohmann::json;
-constexpr double kDeg = kPi / 180;
 
 std::vector<double> Steps(double start, double stop, double step) {
   std::vector<double> v;

@@ -21,7 +21,6 @@ namespace brdfkit::synth {
 namespace {
 
 using nlohmann::json;
-constexpr double kDeg = kPi / 180.0;
 
 [[noreturn]] void Fail(const std::string& file, const std::string& key, const std::string& what) {
   throw std::runtime_error(file + ": " + key + ": " + what);
@@ -79,8 +78,6 @@ struct Fields {
       if (std::find(used.begin(), used.end(), it.key()) == used.end()) Fail(file, Key(it.key()), "unknown key");
   }
 };
-
-json RgbJson(const Eigen::Array3d& a) { return json::array({a[0], a[1], a[2]}); }
 
 // Camera frame: columns right, up, forward (forward from the pinhole to the
 // sample centre).

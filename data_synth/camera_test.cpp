@@ -10,19 +10,12 @@
 #include "brdf/params.h"
 #include "data_synth/camera.h"
 #include "data_synth/outputs.h"
+#include "tests/cli_util.h"
 
 namespace brdfkit::synth {
 namespace {
 
 namespace fs = std::filesystem;
-constexpr double kDeg = kPi / 180;
-
-fs::path TempDir(const std::string& name) {
-  const fs::path d = fs::temp_directory_path() / ("brdfkit_camera_" + name + "_" + std::to_string(::getpid()));
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d;
-}
 
 TEST(Camera, RawImageFollowsThePinholeEquation) {
   // Flat Lambertian sample seen straight down, light at the normal.
@@ -83,7 +76,7 @@ TEST(Camera, NoiselessRoundTripRecoversTheBrdf) {
   rig.exposures = {1e-2};
   const Model model = Model::Parse("lambert+ggx");
   const std::vector<double> p = ParseParams(model.Info(), "lambert.albedo=0.3:0.4:0.5,ggx.alpha=0.2");
-  const fs::path d = TempDir("clean");
+  const fs::path d = test::FreshDir("camera-clean");
   const CameraCapture cap = RenderCamera(rig, model, p, 0);
   const auto files = WriteCameraCapture((d / "raw").string(), rig, cap, model.Spec(), p, 0);
   ASSERT_EQ(files.size(), 1u);
@@ -116,7 +109,7 @@ TEST(Camera, NoisyBracketedRoundTripIsWithinTheNoise) {
   const Model model = Model::Parse("lambert+ggx");
   const std::vector<double> p = ParseParams(model.Info(), "lambert.albedo=0.3:0.4:0.5,ggx.alpha=0.2");
   const auto bxdf = model.Make<double>();
-  const fs::path d = TempDir("noisy");
+  const fs::path d = test::FreshDir("camera-noisy");
   double n = 0, sum = 0, sum2 = 0;
   std::size_t saturated_long = 0;
   for (std::uint64_t seed = 0; seed < 4; ++seed) {

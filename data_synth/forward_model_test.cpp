@@ -17,7 +17,6 @@
 namespace brdfkit::synth {
 namespace {
 
-constexpr double kDeg = kPi / 180;
 
 Instrument PointInstrument() {
   Instrument inst = DefaultInstrument();

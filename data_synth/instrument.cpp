@@ -15,7 +15,6 @@ namespace {
 
 using nlohmann::json;
 
-constexpr double kDeg = kPi / 180.0;
 
 // A JSON object being read: every key must be consumed, so a typo is an
 // error rather than a silently ignored setting.
@@ -140,9 +139,9 @@ json GridJson(const std::vector<double>& v) {
   return a;
 }
 
-json RgbJson(const Eigen::Array3d& a) { return json::array({a[0], a[1], a[2]}); }
-
 }  // namespace
+
+json RgbJson(const Eigen::Array3d& rgb) { return json::array({rgb[0], rgb[1], rgb[2]}); }
 
 Eigen::Array3d Source::BeamIrradiance() const {
   if (kind == Kind::kCollimated) return irradiance;

@@ -114,6 +114,8 @@ Instrument LoadInstrument(const std::string& path);
 
 // The same JSON layout that ParseInstrument reads (round-trips).
 nlohmann::json InstrumentToJson(const Instrument& inst);
+// An RGB triple as the JSON array the instrument and camera-rig files hold.
+nlohmann::json RgbJson(const Eigen::Array3d& rgb);
 
 // Directions of one measurement as (theta, phi) pairs, radians.
 struct PlannedPair {

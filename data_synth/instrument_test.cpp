@@ -14,20 +14,13 @@
 #include "brdf/params.h"
 #include "data_synth/outputs.h"
 #include "data_synth/synth.h"
+#include "tests/cli_util.h"
 
 namespace brdfkit::synth {
 namespace {
 
 namespace fs = std::filesystem;
 using nlohmann::json;
-constexpr double kDeg = kPi / 180;
-
-fs::path TempDir(const std::string& name) {
-  const fs::path d = fs::temp_directory_path() / ("brdfkit_synth_" + name + "_" + std::to_string(::getpid()));
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d;
-}
 
 std::string ErrorOf(const json& j) {
   try {
@@ -105,7 +98,7 @@ TEST(Instrument, ErrorsNameTheFileAndKeyPath) {
   j["detector"]["angular_radius_deg"] = 0;
   EXPECT_NE(ErrorOf(j).find("point detector"), std::string::npos) << ErrorOf(j);
   EXPECT_THROW(LoadInstrument("/nonexistent/lab.json"), std::runtime_error);
-  const fs::path d = TempDir("badjson");
+  const fs::path d = test::FreshDir("synth-badjson");
   std::ofstream(d / "lab.json") << "{\"source\": ";
   try {
     LoadInstrument((d / "lab.json").string());
@@ -116,7 +109,7 @@ TEST(Instrument, ErrorsNameTheFileAndKeyPath) {
 }
 
 TEST(Instrument, ListPlanReadsRelativeFilesAndReportsBadLines) {
-  const fs::path d = TempDir("list");
+  const fs::path d = test::FreshDir("synth-list");
   std::ofstream(d / "dirs.csv") << "# my plan\ntheta_i,phi_i,theta_o,phi_o\n10,0,20,180\n30 45 40 200\n";
   std::ofstream(d / "lab.json") << json{{"source", {{"type", "collimated"}, {"irradiance", 1}}},
                                         {"detector", {{"angular_radius_deg", 0}, {"responsivity", 1e18},
@@ -146,7 +139,7 @@ TEST(Outputs, CsvAndSidecarReproduceTheDataSet) {
   const std::vector<double> p = ParseParams(model.Info(), "lambert.albedo=0.2,ggx.alpha=0.3");
   const SynthResult r = Synthesize(inst, model, p, 77);
   Provenance prov{model.Spec(), p, FormatParams(model.Info(), p), 77, ""};
-  const fs::path d = TempDir("csv");
+  const fs::path d = test::FreshDir("synth-csv");
   const std::string out = (d / "data.csv").string();
   WriteSynthOutput(out, inst, r, prov);
   const BrdfTable t = ReadTableCsv(out);
@@ -184,7 +177,7 @@ TEST(Outputs, MerlPlanWritesAReadableMerlFileAndAnImage) {
   const std::vector<double> p = ParseParams(model.Info(), "alpha=0.25");
   const SynthResult r = Synthesize(inst, model, p, 0);
   ASSERT_EQ(r.samples.size(), 9u * 10u * 9u);
-  const fs::path d = TempDir("merl");
+  const fs::path d = test::FreshDir("synth-merl");
   Provenance prov{model.Spec(), p, FormatParams(model.Info(), p), 0, ""};
   WriteSynthOutput((d / "m.binary").string(), inst, r, prov);
   WriteSynthOutput((d / "m.exr").string(), inst, r, prov);
@@ -230,7 +223,7 @@ int RunCli(const std::string& args, std::string* err = nullptr) {
 }
 
 TEST(SynthCli, WritesTableAndSidecarAndRejectsBadInput) {
-  const fs::path d = TempDir("cli");
+  const fs::path d = test::FreshDir("synth-cli");
   std::string err;
   ASSERT_EQ(RunCli("synth -m lambert -p albedo=0.5 --seed 3 -q --out " + (d / "a.csv").string(), &err), 0) << err;
   const BrdfTable t = ReadTableCsv((d / "a.csv").string());

@@ -13,7 +13,6 @@
 namespace brdfkit::synth {
 namespace {
 
-constexpr double kDeg = kPi / 180;
 
 // Collimated 10 W/m^2 beam, 1 cm^2 sample, 1 degree detector.
 Instrument NoisyInstrument() {

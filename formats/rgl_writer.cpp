@@ -30,7 +30,7 @@ void Check(bool ok, const std::string& what) {
 }
 
 // The source at (wi, wo), checked.
-Rgb<double> Source(const BrdfFunction& f, const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) {
+Rgb<double> SourceAt(const BrdfFunction& f, const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) {
   const Rgb<double> v = f(wi, wo);
   if (!v.isFinite().all())
     throw std::runtime_error("RGL writer: the source is not finite at wi = (" + std::to_string(wi.x()) + ", " +
@@ -60,7 +60,7 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& o) {
         continue;
       }
       const Eigen::Vector3d wm = RB::Direction(RB::UToTheta(x / double(nd - 1)), RB::UToPhi(y / double(nd - 1)));
-      retro[y * nd + x] = Luminance(Source(f, wm, wm));
+      retro[y * nd + x] = Luminance(SourceAt(f, wm, wm));
     }
   // Trapezoidal weights of the nodes over the square times the Jacobian.
   auto node_weight = [](std::size_t i, std::size_t n) { return (i == 0 || i + 1 == n ? 0.5 : 1.0) / double(n - 1); };
@@ -214,7 +214,7 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& o) {
           const double d_at = wo_n.z() >= 0 ? ndf_table.Eval(u[0], u[1])
                                             : ndf_table.Eval(RB::ThetaToU(std::acos(std::min(wm_up.z(), 1.0))),
                                                              RB::PhiToU(std::atan2(wm_up.y(), wm_up.x())));
-          const Rgb<double> v = Source(f, wi, wo_up) * wo_n.z() * 4 * sig / d_at;
+          const Rgb<double> v = SourceAt(f, wi, wo_up) * wo_n.z() * 4 * sig / d_at;
           for (int c = 0; c < 3; ++c) rgb[(slice * 3 + c) * plane + y * n + x] = static_cast<float>(v[c]);
           lum[slice * plane + y * n + x] = static_cast<float>(std::max(Luminance(v), 0.0));  // a sampling density
         }

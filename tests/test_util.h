@@ -92,4 +92,9 @@ inline double HemisphereIntegral(const std::function<double(const Eigen::Vector3
   return sum;
 }
 
+// Directional albedo of GGX with alpha = 1, height-correlated Smith and
+// F = 1, in closed form: E(mu) = 1 - mu ln(1 + 1 / mu), which tends to 1 at
+// mu = 0 (the formula itself is 0 * inf there).
+inline double GgxAlbedoAlpha1(double mu) { return mu == 0 ? 1.0 : 1 - mu * std::log1p(1 / mu); }
+
 }  // namespace brdfkit::test

@@ -18,11 +18,12 @@
 #include "brdf/model.h"
 #include "brdf/params.h"
 #include "brdf/quadrature.h"
+#include "tests/test_util.h"
 
 namespace brdfkit::validate {
 namespace {
 
-double GgxAlpha1(double mu) { return mu == 0 ? 1.0 : 1 - mu * std::log1p(1 / mu); }
+using test::GgxAlbedoAlpha1;
 double GgxSeparableAlpha1(double mu) { return 2 * (1 - std::log(2.0)) / (1 + mu); }
 
 AlbedoTable Table(const std::string& model, const std::string& params, const std::string& axes,
@@ -85,7 +86,7 @@ TEST(AlbedoTable, GgxAlphaOneMatchesClosedFormIncludingGrazingLimit) {
   EXPECT_EQ(t.mu.nodes.front(), 0.0);
   EXPECT_EQ(t.mu.nodes.back(), 1.0);
   for (std::size_t m = 0; m < t.n_mu(); ++m)
-    EXPECT_NEAR(t.at(m, 0), GgxAlpha1(t.mu.nodes[m]), 1e-7) << "mu = " << t.mu.nodes[m];
+    EXPECT_NEAR(t.at(m, 0), GgxAlbedoAlpha1(t.mu.nodes[m]), 1e-7) << "mu = " << t.mu.nodes[m];
   EXPECT_NEAR(t.at(t.n_mu() - 1, 0), 1 - std::log(2.0), 1e-8);
   // E_avg = 2 int_0^1 (1 - mu ln(1 + 1/mu)) mu dmu = 4/3 (1 - ln 2).
   EXPECT_NEAR(t.E_avg[0], 4.0 / 3.0 * (1 - std::log(2.0)), 1e-8);
@@ -101,7 +102,7 @@ TEST(AlbedoTable, ErrorEstimatesAreHonestAtEveryTolerance) {
     const AlbedoTable t = Table("ggx", "f0=1", "mu:9,alpha:1:1:1", NodeRule::kUniform, tol);
     EXPECT_LE(t.max_error, tol);
     for (std::size_t m = 0; m < t.n_mu(); ++m) {
-      const double err = std::abs(t.at(m, 0) - GgxAlpha1(t.mu.nodes[m]));
+      const double err = std::abs(t.at(m, 0) - GgxAlbedoAlpha1(t.mu.nodes[m]));
       EXPECT_LE(err, tol) << "mu = " << t.mu.nodes[m];
       // At mu = 0 the entry also differs from the limit by limit_error.
       const double estimate = t.E_error[m] + (t.mu.nodes[m] == 0 ? t.limit_error : 0.0);
@@ -355,7 +356,7 @@ TEST(AlbedoOutput, CsvHasHeaderRowsAndAverageFile) {
     double mu, alpha, e;
     ASSERT_TRUE(ParseDouble(a, mu) && ParseDouble(b, alpha) && ParseDouble(c, e)) << line;
     if (alpha == 1.0) {
-      EXPECT_NEAR(e, GgxAlpha1(mu), 1e-7);
+      EXPECT_NEAR(e, GgxAlbedoAlpha1(mu), 1e-7);
     }
     ++rows;
   }
@@ -408,7 +409,7 @@ TEST(AlbedoOutput, ExrStoresFloatImagesAndNodeAttributes) {
   for (int r = 0; r < hgt; ++r)
     for (int c = 0; c < w; ++c) EXPECT_FLOAT_EQ(px[r * w + c], float(t.at(c, r)));
   // Row alpha = 1 holds the closed form.
-  for (int c = 0; c < w; ++c) EXPECT_NEAR(px[2 * w + c], GgxAlpha1(mu->value()[c]), 1e-6);
+  for (int c = 0; c < w; ++c) EXPECT_NEAR(px[2 * w + c], GgxAlbedoAlpha1(mu->value()[c]), 1e-6);
   EXPECT_EQ(in.header(1).name(), "E_avg");
 }
 

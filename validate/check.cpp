@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <random>
 
+#include "brdf/params.h"
 #include "validate/integrators.h"
 #include "validate/sampling_check.h"
 
@@ -27,16 +28,10 @@ Vector3d FromMu(double mu, double phi) {
   return Vector3d(s * std::cos(phi), s * std::sin(phi), mu);
 }
 
-std::string Num(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.6g", v);
-  return buf;
-}
-
 std::string Dir(const Vector3d& w) {
   const double theta = std::acos(std::clamp(w.z(), -1.0, 1.0)) * 180 / kPi;
   const double phi = std::atan2(w.y(), w.x()) * 180 / kPi;
-  return "(theta " + Num(theta) + " deg, phi " + Num(phi) + " deg)";
+  return "(theta " + FormatShort(theta) + " deg, phi " + FormatShort(phi) + " deg)";
 }
 
 // Structured pairs of the reciprocity test, plus random ones.
@@ -140,13 +135,13 @@ CheckResult CheckPlausibility(const Bxdf<double>& bxdf, const double* p, const C
   }
   if (!std::isfinite(r.min_value)) r.min_value = 0;
   if (r.reciprocity_max_rel_error > o.reciprocity_tolerance)
-    r.reasons.push_back("reciprocity: relative asymmetry " + Num(r.reciprocity_max_rel_error) + " > " +
-                        Num(o.reciprocity_tolerance) + " at wi " + Dir(r.reciprocity_worst_wi) + ", wo " +
+    r.reasons.push_back("reciprocity: relative asymmetry " + FormatShort(r.reciprocity_max_rel_error) + " > " +
+                        FormatShort(o.reciprocity_tolerance) + " at wi " + Dir(r.reciprocity_worst_wi) + ", wo " +
                         Dir(r.reciprocity_worst_wo));
   if (r.nonfinite_count > 0)
     r.reasons.push_back("values: " + std::to_string(r.nonfinite_count) + " of " + std::to_string(r.values_checked) +
                         " evaluated values are not finite");
-  if (r.min_value < 0) r.reasons.push_back("values: negative f_r (min " + Num(r.min_value) + ")");
+  if (r.min_value < 0) r.reasons.push_back("values: negative f_r (min " + FormatShort(r.min_value) + ")");
 
   // --- energy conservation: search for the largest directional albedo ---
   r.rotation_invariant = RotationInvariant(bxdf, p);
@@ -274,22 +269,23 @@ CheckResult CheckPlausibility(const Bxdf<double>& bxdf, const double* p, const C
   r.albedo_max_at_mu = best.mu;
   r.albedo_max_at_phi = best.phi;
   const auto at = [&](const Sample& s) {
-    return "mu = " + Num(s.mu) + (r.rotation_invariant ? "" : ", phi = " + Num(s.phi * 180 / kPi) + " deg");
+    return "mu = " + FormatShort(s.mu) +
+           (r.rotation_invariant ? "" : ", phi = " + FormatShort(s.phi * 180 / kPi) + " deg");
   };
   // The highest albedo among those wholly above the bound.
   auto hit = searched.end();
   for (auto it = searched.begin(); it != searched.end(); ++it)
     if (above(*it) && (hit == searched.end() || !(it->value <= hit->value))) hit = it;
   if (hit != searched.end())
-    r.reasons.push_back("energy: directional albedo " + Num(hit->value) + " > 1 at " + at(*hit) + " (error estimate " +
-                        Num(hit->error) + ")");
+    r.reasons.push_back("energy: directional albedo " + FormatShort(hit->value) + " > 1 at " + at(*hit) +
+                        " (error estimate " + FormatShort(hit->error) + ")");
   else if (worst_open)
-    r.inconclusive.push_back("energy: directional albedo " + Num(worst_open->value) + " +- " + Num(worst_open->error) +
-                             " at " + at(*worst_open) + ": the error bar reaches past 1" +
-                             (worst_open->tightened ? ", also with a budget of " +
-                                                          std::to_string(io.budget * o.tighten_factor) + " evaluations"
-                                                    : " (only the " + std::to_string(o.tighten_points) +
-                                                          " highest error bars are integrated again)"));
+    r.inconclusive.push_back(
+        "energy: directional albedo " + FormatShort(worst_open->value) + " +- " + FormatShort(worst_open->error) +
+        " at " + at(*worst_open) + ": the error bar reaches past 1" +
+        (worst_open->tightened
+             ? ", also with a budget of " + std::to_string(io.budget * o.tighten_factor) + " evaluations"
+             : " (only the " + std::to_string(o.tighten_points) + " highest error bars are integrated again)"));
 
   // --- sampling consistency ---
   // The chi-square bins (20 x 40 over the hemisphere, 6 x 6 Gauss points
@@ -298,7 +294,8 @@ CheckResult CheckPlausibility(const Bxdf<double>& bxdf, const double* p, const C
   if (o.sampling && !bxdf.CanSample())
     r.sampling_note = "not checked: the model provides no Sample/Pdf";
   else if (o.sampling && lobe_width > 0 && lobe_width < kMinSampledLobeWidth)
-    r.sampling_note = "not checked: lobe width " + Num(lobe_width) + " rad is below the chi-square bins' resolution";
+    r.sampling_note =
+        "not checked: lobe width " + FormatShort(lobe_width) + " rad is below the chi-square bins' resolution";
   if (o.sampling && r.sampling_note.empty()) {
     r.sampling_checked = true;
     std::vector<Vector3d> wos;
@@ -328,8 +325,8 @@ CheckResult CheckPlausibility(const Bxdf<double>& bxdf, const double* p, const C
       }
       if (!std::isfinite(s.pdf_integral) || gap > 5 * se + 2e-3 || s.pdf_integral > 1 + 2e-3 || s.nonfinite > 0) {
         if (!pdf_bad)
-          pdf_note = "sampling: pdf integral " + Num(s.pdf_integral) + " vs valid sample fraction " + Num(vf) +
-                     " at wo " + Dir(wo) + (s.nonfinite > 0 ? ", non-finite samples" : "");
+          pdf_note = "sampling: pdf integral " + FormatShort(s.pdf_integral) + " vs valid sample fraction " +
+                     FormatShort(vf) + " at wo " + Dir(wo) + (s.nonfinite > 0 ? ", non-finite samples" : "");
         pdf_bad = true;
       }
     }
@@ -338,8 +335,8 @@ CheckResult CheckPlausibility(const Bxdf<double>& bxdf, const double* p, const C
     r.chi2_p_value = 1 - std::pow(1 - r.chi2_min_p, m);
     if (pdf_bad) r.reasons.push_back(pdf_note);
     if (r.chi2_p_value < o.significance)
-      r.reasons.push_back("sampling: chi-square p-value " + Num(r.chi2_p_value) + " (Sidak over " +
-                          std::to_string(m) + " directions) < " + Num(o.significance));
+      r.reasons.push_back("sampling: chi-square p-value " + FormatShort(r.chi2_p_value) + " (Sidak over " +
+                          std::to_string(m) + " directions) < " + FormatShort(o.significance));
   }
 
   // --- microfacet normalisation ---
@@ -354,7 +351,7 @@ CheckResult CheckPlausibility(const Bxdf<double>& bxdf, const double* p, const C
     r.d_normalisation = dn.value[0];
     r.d_normalisation_error = dn.error[0];
     if (!(std::abs(r.d_normalisation - 1) <= r.d_normalisation_error + o.normalisation_tolerance))
-      r.reasons.push_back("microfacet: int D cos = " + Num(r.d_normalisation) + " != 1");
+      r.reasons.push_back("microfacet: int D cos = " + FormatShort(r.d_normalisation) + " != 1");
     r.has_smith_g1 = mf->HasSmithG1();
     if (r.has_smith_g1) {
       r.furnace_min = std::numeric_limits<double>::infinity();
@@ -374,8 +371,8 @@ CheckResult CheckPlausibility(const Bxdf<double>& bxdf, const double* p, const C
       }
       const double dev = std::max(std::abs(r.furnace_min - 1), std::abs(r.furnace_max - 1));
       if (!(dev <= r.furnace_error + o.normalisation_tolerance))
-        r.reasons.push_back("microfacet: weak white furnace in [" + Num(r.furnace_min) + ", " + Num(r.furnace_max) +
-                            "], not 1");
+        r.reasons.push_back("microfacet: weak white furnace in [" + FormatShort(r.furnace_min) + ", " +
+                            FormatShort(r.furnace_max) + "], not 1");
     }
   }
 

@@ -11,12 +11,12 @@
 #include "brdf/microfacet.h"
 #include "brdf/model.h"
 #include "validate/albedo.h"
+#include "tests/test_util.h"
 
 namespace brdfkit::validate {
 namespace {
 
-// GGX, alpha = 1, height-correlated Smith, F = 1: E(mu) = 1 - mu ln(1 + 1 / mu).
-double GgxAlpha1(double mu) { return 1 - mu * std::log1p(1 / mu); }
+using test::GgxAlbedoAlpha1;
 
 const PresetTable& Find(const Preset& p, const std::string& name) {
   for (const PresetTable& t : p.tables)
@@ -51,7 +51,7 @@ TEST(CyclesPreset, GgxTablesHoldTheClosedFormsAndAgreeWithTheShippedOnes) {
     EXPECT_EQ(e.value[y * 32], 1.0);
     // Roughness 1 (x = 31, alpha = 1), at the mu Cycles evaluates (>= 1e-4).
     const double mu = std::max(1e-4, y / 31.0);
-    EXPECT_NEAR(e.value[y * 32 + 31], GgxAlpha1(mu), e.error[y * 32 + 31] + 1e-13) << "y " << y;
+    EXPECT_NEAR(e.value[y * 32 + 31], GgxAlbedoAlpha1(mu), e.error[y * 32 + 31] + 1e-13) << "y " << y;
   }
   // E_avg at alpha = 1: 1 - 2 int_0^1 mu^2 ln(1 + 1/mu) dmu, by parts
   // ln(2) / 3 + (1/3) int_0^1 mu^2 / (1 + mu) dmu = (2 ln 2 - 1/2) / 3, so
@@ -161,7 +161,7 @@ TEST(FilamentPreset, ChannelsAreTheSplitSumAndClothIntegrals) {
   ASSERT_EQ(t.value.size(), 8u * 8u * 3u);
   EXPECT_LE(p.max_error, 1e-7);
   // Row 7: roughness min(1, 8.5 / 8) = 1, G = E of GGX alpha = 1.
-  for (int i = 0; i < 8; ++i) EXPECT_NEAR(t.value[3 * (7 * 8 + i) + 1], GgxAlpha1((i + 0.5) / 8), 1e-7);
+  for (int i = 0; i < 8; ++i) EXPECT_NEAR(t.value[3 * (7 * 8 + i) + 1], GgxAlbedoAlpha1((i + 0.5) / 8), 1e-7);
   for (const auto& [i, j] : std::vector<std::pair<int, int>>{{1, 3}, {5, 2}, {2, 6}}) {
     const double nov = (i + 0.5) / 8, r = (j + 1.5) / 8, a = r * r, a2 = a * a;
     const Eigen::Vector3d v(std::sqrt(1 - nov * nov), 0, nov);

@@ -15,12 +15,6 @@ namespace {
 using Eigen::Array3d;
 using Eigen::Vector3d;
 
-std::string Num(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%g", v);
-  return buf;
-}
-
 Vector3d ViewDirection(double mu) { return Vector3d(std::sqrt(std::max(0.0, 1.0 - mu * mu)), 0.0, mu); }
 
 struct LoadedModel {
@@ -118,19 +112,20 @@ std::vector<ReferenceCase> ReferenceCases() {
   cases.push_back(AlbedoCase("lambert", "lambert_mu0.5", "lambert", "albedo=0.2:0.5:0.9", 0.5,
                              Array3d(0.2, 0.5, 0.9), false));
   for (double mu : mus) {
-    cases.push_back(AlbedoCase("ggx_alpha1", "ggx_alpha1_mu" + Num(mu), "ggx", "alpha=1,f0=1", mu,
+    cases.push_back(AlbedoCase("ggx_alpha1", "ggx_alpha1_mu" + FormatShort(mu), "ggx", "alpha=1,f0=1", mu,
                                Array3d::Constant(1.0 - mu * std::log1p(1.0 / mu)), mu < 1e-2));
   }
   for (double mu : mus) {
-    cases.push_back(AlbedoCase("ggx_separable_alpha1", "ggx_separable_alpha1_mu" + Num(mu), "ggx_separable",
+    cases.push_back(AlbedoCase("ggx_separable_alpha1", "ggx_separable_alpha1_mu" + FormatShort(mu), "ggx_separable",
                                "alpha=1,f0=1", mu,
                                Array3d::Constant(2.0 * (1.0 - std::log(2.0)) / (1.0 + mu)), mu < 1e-2));
   }
   for (const char* dist : {"ggx", "beckmann"}) {
     for (double alpha : {0.5, 0.1, 1e-2, 1e-3, 1e-4}) {
       for (double mu : {1.0, 0.5, 0.1, 0.01}) {
-        cases.push_back(MicrofacetCase(std::string("furnace_") + dist, dist, "alpha=" + Num(alpha), alpha, alpha, mu,
-                                       true, std::string("furnace_") + dist + "_alpha" + Num(alpha) + "_mu" + Num(mu)));
+        cases.push_back(
+            MicrofacetCase(std::string("furnace_") + dist, dist, "alpha=" + FormatShort(alpha), alpha, alpha, mu, true,
+                           std::string("furnace_") + dist + "_alpha" + FormatShort(alpha) + "_mu" + FormatShort(mu)));
       }
     }
   }
@@ -138,19 +133,19 @@ std::vector<ReferenceCase> ReferenceCases() {
   for (const char* dist : {"ggx_aniso", "beckmann_aniso"}) {
     for (double mu : {1.0, 0.1}) {
       cases.push_back(MicrofacetCase(std::string("furnace_") + dist, dist, "alpha_x=0.3,alpha_y=3e-4", 0.3, 3e-4, mu,
-                                     true, std::string("furnace_") + dist + "_mu" + Num(mu)));
+                                     true, std::string("furnace_") + dist + "_mu" + FormatShort(mu)));
     }
   }
   for (const char* dist : {"ggx", "beckmann"}) {
     for (double alpha : {0.5, 1e-2, 1e-4}) {
-      cases.push_back(MicrofacetCase(std::string("dcos_") + dist, dist, "alpha=" + Num(alpha), alpha, alpha, 1.0,
-                                     false, std::string("dcos_") + dist + "_alpha" + Num(alpha)));
+      cases.push_back(MicrofacetCase(std::string("dcos_") + dist, dist, "alpha=" + FormatShort(alpha), alpha, alpha,
+                                     1.0, false, std::string("dcos_") + dist + "_alpha" + FormatShort(alpha)));
     }
   }
   // cos^n lobes: exponents 1e2 .. 1e6 (widths sqrt(2 / n) down to 1.4e-3).
   for (double n : {1e2, 1e4, 1e6}) {
     ReferenceCase c;
-    c.name = "cosine_power_n" + Num(n);
+    c.name = "cosine_power_n" + FormatShort(n);
     c.group = "cosine_power";
     c.exact = Array3d::Ones();
     c.stiff = n > 1e4 / 2;
@@ -163,8 +158,9 @@ std::vector<ReferenceCase> ReferenceCases() {
   // Phong 1975 as a BRDF: f cos_i = ks cos^n(alpha); the lobe is clear of the
   // horizon (cos^n at the horizon below 1e-300) for these (n, mu).
   for (auto [n, mu] : {std::pair{1e2, 1.0}, std::pair{1e4, 0.5}, std::pair{1e6, 0.5}, std::pair{1e6, 0.1}}) {
-    cases.push_back(AlbedoCase("phong_original", "phong_original_n" + Num(n) + "_mu" + Num(mu), "phong_original",
-                               "ks=1,n=" + Num(n), mu, Array3d::Constant(2.0 * kPi / (n + 1.0)), n > 1e4 / 2));
+    cases.push_back(AlbedoCase("phong_original", "phong_original_n" + FormatShort(n) + "_mu" + FormatShort(mu),
+                               "phong_original", "ks=1,n=" + FormatShort(n), mu,
+                               Array3d::Constant(2.0 * kPi / (n + 1.0)), n > 1e4 / 2));
   }
   {
     // Fujii 2012 with rho = 1, sigma (= B / A) = 1.
