@@ -6,6 +6,10 @@ target_compile_options(brdfkit_warnings INTERFACE
   # GCC 12 reports false -Wrestrict overlaps inside std::string's operator+
   # at -O2 (GCC bug 105329).
   $<$<CXX_COMPILER_ID:GNU>:-Wno-restrict>
+  # In a unity build every source is an included file, and GCC warns of any
+  # class there with a member of a type from its anonymous namespace, as it
+  # would in a header (each source's own types are meant to be local).
+  $<$<AND:$<CXX_COMPILER_ID:GNU>,$<BOOL:${CMAKE_UNITY_BUILD}>>:-Wno-subobject-linkage>
   $<$<BOOL:${BRDFKIT_WERROR}>:-Werror>
   # sqrt without errno: GCC then vectorises the batch kernels of brdf/batch.h
   # (with errno it branches around every sqrt). Values are the same: brdfkit
