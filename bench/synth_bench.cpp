@@ -17,7 +17,6 @@ namespace {
 using namespace brdfkit;
 using namespace brdfkit::synth;
 
-
 Instrument MerlInstrument(double source_deg, double detector_deg) {
   Instrument inst = DefaultInstrument();
   inst.plan.kind = SamplingPlan::Kind::kMerl;

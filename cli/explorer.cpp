@@ -77,10 +77,10 @@ json MaterialJson(const ExplorerMaterial& m, int index) {
   std::vector<Eigen::Vector3d> albedo_dirs;
   for (double pi : phi_i)
     for (double ti : kThetaI) albedo_dirs.push_back(Dir(std::min(ti, 89.5), pi));
+  const validate::IntegrateOptions io = ao.Integrate(shape);
   std::vector<Rgb<double>> e(albedo_dirs.size());
   tbb::parallel_for(std::size_t(0), albedo_dirs.size(), [&](std::size_t k) {
-    const validate::AlbedoValue v =
-        validate::DirectionalAlbedo(*b, p, albedo_dirs[k], validate::Method::kAdaptive, ao.Integrate(shape));
+    const validate::AlbedoValue v = validate::DirectionalAlbedo(*b, p, albedo_dirs[k], validate::Method::kAdaptive, io);
     e[k] = Rgb<double>(v.value[0], v.value[1], v.value[2]);
   });
   for (const Rgb<double>& v : e) albedo.Add(v);

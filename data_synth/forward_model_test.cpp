@@ -17,7 +17,6 @@
 namespace brdfkit::synth {
 namespace {
 
-
 Instrument PointInstrument() {
   Instrument inst = DefaultInstrument();
   inst.source.kind = Source::Kind::kCollimated;

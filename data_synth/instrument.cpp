@@ -15,7 +15,6 @@ namespace {
 
 using nlohmann::json;
 
-
 // A JSON object being read: every key must be consumed, so a typo is an
 // error rather than a silently ignored setting.
 class ObjectReader {

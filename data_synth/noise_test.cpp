@@ -13,7 +13,6 @@
 namespace brdfkit::synth {
 namespace {
 
-
 // Collimated 10 W/m^2 beam, 1 cm^2 sample, 1 degree detector.
 Instrument NoisyInstrument() {
   Instrument inst = DefaultInstrument();
