@@ -12,8 +12,8 @@
 
 #include "brdf/model.h"
 #include "brdf/params.h"
-#include "tests/test_util.h"
 #include "brdf/quadrature.h"
+#include "tests/test_util.h"
 #include "validate/jet_models.h"
 #include "validate/sampling_check.h"
 

@@ -11,10 +11,10 @@
 #include "brdf/ashikhmin_shirley.h"
 #include "brdf/model.h"
 #include "brdf/params.h"
-#include "tests/test_util.h"
+#include "brdf/quadrature.h"
 #include "brdf/torrance_sparrow.h"
 #include "brdf/ward.h"
-#include "brdf/quadrature.h"
+#include "tests/test_util.h"
 #include "validate/sampling_check.h"
 
 namespace brdfkit {

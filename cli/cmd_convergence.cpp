@@ -4,7 +4,6 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
-#include <cstdio>
 #include <filesystem>
 #include <iostream>
 #include <map>
@@ -60,12 +59,6 @@ std::vector<std::int64_t> Budgets(Method m, bool quick) {
   std::int64_t b = first;
   for (int i = 0; i < steps; ++i, b *= 4) out.push_back(b);
   return out;
-}
-
-std::string Fmt(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.6g", v);
-  return buf;
 }
 
 }  // namespace
@@ -129,7 +122,8 @@ ConvergenceOutcome RunConvergence(const std::string& out_dir, const std::vector<
     csv << "integrator,case,budget,evals,seconds,abs_error,est_error\n";
     for (const Row& r : rows)
       csv << validate::MethodName(r.method) << ',' << r.case_name << ',' << r.budget << ',' << r.estimate.evals
-          << ',' << Fmt(r.estimate.seconds) << ',' << Fmt(r.abs_error) << ',' << Fmt(r.est_error) << '\n';
+          << ',' << FormatShort(r.estimate.seconds) << ',' << FormatShort(r.abs_error) << ','
+          << FormatShort(r.est_error) << '\n';
     WriteFileAtomic(fs::path(out_dir) / "convergence.csv", csv.str());
   }
 
@@ -185,7 +179,7 @@ ConvergenceOutcome RunConvergence(const std::string& out_dir, const std::vector<
         }
       }
       if (reached == int(cases.size())) {
-        md << " | " << Fmt(worst_time) << " s";
+        md << " | " << FormatShort(worst_time) << " s";
       } else {
         md << " | not reached (" << reached << "/" << cases.size() << " cases)";
       }

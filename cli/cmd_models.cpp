@@ -1,4 +1,3 @@
-#include <cstdio>
 #include <iostream>
 
 #include "cli/common.h"
@@ -6,12 +5,6 @@
 namespace brdfkit::cli {
 
 namespace {
-std::string Num(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%g", v);
-  return buf;
-}
-
 std::string KindText(unsigned kind) {
   std::string s;
   const std::pair<unsigned, const char*> names[] = {{LobeKind::kDiffuse, "diffuse"},
@@ -32,7 +25,7 @@ std::string ModelTableMarkdown() {
     std::string params;
     for (const ParamInfo& p : i.params)
       params += (params.empty() ? "" : "; ") + ("`" + p.name + "`") + (p.colour ? " (rgb)" : "") + " [" +
-                Num(p.lower) + ", " + Num(p.upper) + "] " + Num(p.default_value);
+                FormatShort(p.lower) + ", " + FormatShort(p.upper) + "] " + FormatShort(p.default_value);
     for (const std::string& s : i.settings) params += (params.empty() ? "" : "; ") + ("`" + s + "`") + " (setting)";
     out += "| `" + i.name + "` | " + params + " | " + KindText(TraitsOf(i.name).kind) + " | " +
            (i.reciprocal ? "yes" : "**no**") + " | " + (i.energy_conserving ? "yes" : "no") + " | " + i.summary +

@@ -77,10 +77,10 @@ Engine::Engine(const Evaluators& model, const Options& o, double loss_scale, con
       l.jet = JetSize(l.lanes.size());
       smaller = smaller || l.jet < jet_;
       const Model lobe = m->LobeAlone(k);
-      if (l.jet == 4) l.b4 = MakeJet4(lobe);
-      if (l.jet == 8) l.b8 = MakeJet8(lobe);
-      if (l.jet == 16) l.b16 = MakeJet16(lobe);
-      if (l.jet == 32) l.b32 = MakeJet32(lobe);
+      if (l.jet == 4) l.b4 = lobe.Make<Jet<4>>();
+      if (l.jet == 8) l.b8 = lobe.Make<Jet<8>>();
+      if (l.jet == 16) l.b16 = lobe.Make<Jet<16>>();
+      if (l.jet == 32) l.b32 = lobe.Make<Jet<32>>();
       lobes_.push_back(std::move(l));
     }
     if (!smaller) lobes_.clear();  // every lobe needs the sum's Jet: nothing to gain

@@ -12,11 +12,6 @@ namespace brdfkit::fit {
 template <int N>
 using Jet = JetN<N>;
 
-std::unique_ptr<Bxdf<Jet<4>>> MakeJet4(const Model& model);
-std::unique_ptr<Bxdf<Jet<8>>> MakeJet8(const Model& model);
-std::unique_ptr<Bxdf<Jet<16>>> MakeJet16(const Model& model);
-std::unique_ptr<Bxdf<Jet<32>>> MakeJet32(const Model& model);
-
 // What the fitter needs of a model: its parameter table and its evaluators
 // on double and on the Jet sizes it differentiates with. ModelEvaluators
 // serves a registered model; a model outside the registry (a Python

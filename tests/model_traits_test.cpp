@@ -131,7 +131,7 @@ TEST(ModelTraits, DeclaredChannelIndependenceHolds) {
     const Model m = MakeModel(info);
     if (!m.Make<double>()->ChannelsIndependent() || info.PackedSize() > 32) continue;
     SCOPED_TRACE(info.name);
-    const auto b = fit::MakeJet32(m);
+    const auto b = m.Make<J>();
     std::vector<int> channel;
     for (const ParamInfo& p : info.params)
       for (int c = 0; c < (p.colour ? 3 : 1); ++c) channel.push_back(p.colour ? c : -1);
