@@ -163,14 +163,29 @@ Rgb<T> Engine::Prediction(const Bxdf<T>& b, const T* p, const Eigen::Vector3d& w
 }
 
 namespace {
-// The unit directions of samples [begin, end) as packed rows of 3 (EvalBatch's input).
-void Directions(const Prepared& d, std::size_t begin, std::size_t end, std::vector<double>& wi, std::vector<double>& wo) {
+// The unit directions of samples [begin, end) for EvalBatch: read in place
+// (the rows' own wi and wo, a Sample apart) when the rows are consecutive
+// and unit, else packed into wi and wo as rows of 3.
+struct DirectionRows {
+  const double* wi;
+  const double* wo;
+  std::size_t stride;
+  double CosI(std::size_t k) const { return wi[stride * k + 2]; }
+};
+DirectionRows Directions(const Prepared& d, std::size_t begin, std::size_t end, std::vector<double>& wi,
+                         std::vector<double>& wo) {
+  static_assert(sizeof(Sample) % sizeof(double) == 0 && sizeof(Eigen::Vector3d) == 3 * sizeof(double));
+  if (d.unit && d.consecutive) {
+    const Sample& s = d.Row(begin);
+    return {s.wi.data(), s.wo.data(), sizeof(Sample) / sizeof(double)};
+  }
   wi.resize(3 * (end - begin));
   wo.resize(3 * (end - begin));
   for (std::size_t q = begin; q < end; ++q) {
     Eigen::Map<Eigen::Vector3d>(wi.data() + 3 * (q - begin)) = d.Wi(q);
     Eigen::Map<Eigen::Vector3d>(wo.data() + 3 * (q - begin)) = d.Wo(q);
   }
+  return {wi.data(), wo.data(), 3};
 }
 }  // namespace
 
@@ -184,8 +199,8 @@ void Engine::PredictRange(const std::vector<double>& p, const Prepared& d, std::
     for (std::size_t q = begin; q < end; ++q) Eigen::Map<Eigen::Array3d>(out + 3 * (q - begin)) = Predict(p, d, q);
   } else if (end > begin) {
     std::vector<double> wi, wo;
-    Directions(d, begin, end, wi, wo);
-    b_->EvalBatch(p.data(), wi.data(), 3, wo.data(), 3, end - begin, out);
+    const DirectionRows dir = Directions(d, begin, end, wi, wo);
+    b_->EvalBatch(p.data(), dir.wi, dir.stride, dir.wo, dir.stride, end - begin, out);
   }
 }
 
@@ -198,10 +213,10 @@ bool Engine::EvalDouble(const double* u, const Prepared& d, std::size_t begin, s
   } else if (end > begin) {
     // f_r of the whole range in one EvalBatch call (the model's vectorised kernel).
     std::vector<double> wi, wo, f(3 * (end - begin));
-    Directions(d, begin, end, wi, wo);
-    b_->EvalBatch(p.data(), wi.data(), 3, wo.data(), 3, end - begin, f.data());
+    const DirectionRows dir = Directions(d, begin, end, wi, wo);
+    b_->EvalBatch(p.data(), dir.wi, dir.stride, dir.wo, dir.stride, end - begin, f.data());
     for (std::size_t q = begin; q < end; ++q)
-      ResidualsOf(Rgb<double>(Rgb<double>::Map(f.data() + 3 * (q - begin))), d, q, wi[3 * (q - begin) + 2], fit,
+      ResidualsOf(Rgb<double>(Rgb<double>::Map(f.data() + 3 * (q - begin))), d, q, dir.CosI(q - begin), fit,
                   r + 3 * (q - begin));
   }
   for (std::size_t k = 0; k < 3 * (end - begin); ++k)

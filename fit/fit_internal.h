@@ -69,6 +69,9 @@ struct Prepared {
   // Every direction of the rows has unit length to rounding (the readers'
   // do); else each is normalised where it is read.
   bool unit = true;
+  // index is first, first + 1, ...: a range's rows lie one after another in
+  // data->samples, and batch evaluations read their directions in place.
+  bool consecutive = false;
   // A subset's own copy of its rows (data then points at it): its passes
   // read them one after another, not scattered over the whole table.
   std::shared_ptr<const Dataset> rows;

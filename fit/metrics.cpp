@@ -106,6 +106,8 @@ Prepared Prepare(const Dataset& data, const std::vector<std::size_t>& index, con
   const auto unit = [](const Eigen::Vector3d& w) { return std::abs(w.squaredNorm() - 1) <= 1e-14; };
   p.unit = std::all_of(index.begin(), index.end(),
                        [&](std::size_t k) { return unit(data.samples[k].wi) && unit(data.samples[k].wo); });
+  p.consecutive = true;
+  for (std::size_t q = 1; q < n && p.consecutive; ++q) p.consecutive = index[q] == index[0] + q;
   ReserveHuge(p.target, n);
   ReserveHuge(p.w_fit, n);
   p.target.resize(n);
@@ -149,6 +151,7 @@ Prepared Rows(const Prepared& p, const std::vector<std::size_t>& rows) {
   own->source = p.data->source;
   own->samples.reserve(rows.size());
   out.unit = p.unit;
+  out.consecutive = true;  // its own rows, in order
   out.index.reserve(rows.size());
   out.target.reserve(rows.size());
   out.w_fit.reserve(rows.size());
