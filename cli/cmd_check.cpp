@@ -34,6 +34,8 @@ nlohmann::json ResultJson(const validate::CheckResult& r) {
       {"reasons", r.reasons},
       {"inconclusive", r.inconclusive},
       {"albedo_tightened", r.albedo_tightened},
+      {"albedo_evaluations", r.albedo_evaluations},
+      {"albedo_integrand_evaluations", r.albedo_integrand_evals},
       {"albedo_max_error", r.albedo_max_error},
       {"albedo_max_at_phi", r.albedo_max_at_phi},
       {"albedo_max_per_channel", {r.albedo_max_per_channel[0], r.albedo_max_per_channel[1], r.albedo_max_per_channel[2]}},
@@ -105,7 +107,7 @@ void RegisterCheck(CLI::App& app) {
   static ModelArgs margs;
   static bool json = false, sweep = false, no_sampling = false;
   static int per_axis = 4;
-  static std::int64_t samples = 100000;
+  static std::int64_t samples = 100000, albedo_budget = validate::CheckOptions().albedo_budget;
   static std::string fixed;
   AddModelOptions(cmd, margs);
   cmd->add_flag("--json", json, "print JSON (keys reciprocity_max_rel_error, albedo_max, albedo_max_at_mu, min_value, "
@@ -118,12 +120,17 @@ void RegisterCheck(CLI::App& app) {
   cmd->add_option("--samples", samples, "samples per direction for the chi-square test (default 100000; sweep: a fifth)")
       ->check(CLI::Range(std::int64_t(1000), std::int64_t(100000000)));
   cmd->add_flag("--no-sampling", no_sampling, "skip the sampling tests");
+  cmd->add_option("--albedo-budget", albedo_budget,
+                  "integrand evaluations per directional albedo of the energy search (default 400000; a measured "
+                  "table, whose interpolation the adaptive rule cannot resolve to 1e-8, spends all of it)")
+      ->check(CLI::Range(std::int64_t(1000), std::int64_t(1000000000)));
   cmd->callback([] {
     const LoadedModel m = LoadModel(margs);
     const ModelInfo& info = m.model.Info();
     validate::CheckOptions o;
     o.sampling = !no_sampling;
     o.sampling_samples = samples;
+    o.albedo_budget = albedo_budget;
     if (!sweep) {
       const auto b = m.model.Make<double>();
       const validate::CheckResult r = validate::CheckPlausibility(*b, m.params.data(), o);

@@ -129,6 +129,7 @@ TaskOutcome CheckTask::Run(const TaskSpec& spec, const RunContext& ctx) const {
     validate::CheckOptions opt;
     opt.sampling = t.sampling;
     opt.sampling_samples = t.sampling_samples;
+    opt.albedo_budget = t.albedo_budget;
     const auto b = lm.model.Make<double>();
     const validate::CheckResult r = validate::CheckPlausibility(*b, lm.params.data(), opt);
     json j = CheckResultJson(r);

@@ -227,7 +227,7 @@ TEST(Run, MeasuredMaterialsOfEveryFormat) {
                                               "rgl": {"measured": "scan.bsdf"}},
     "tasks": [{"name": "fit_astm", "type": "fit", "data": "astm", "model": "lambert+ggx", "starts": 2},
               {"name": "fit_utia", "type": "fit", "data": "utia", "model": "lambert+ggx", "starts": 2},
-              {"name": "check_rgl", "type": "check", "materials": ["rgl"], "sampling": false},
+              {"name": "check_rgl", "type": "check", "materials": ["rgl"], "sampling": false, "albedo_budget": 20000},
               {"name": "measure_rgl", "type": "synth", "material": "rgl", "instrument": "gonio"}],
     "instruments": {"gonio": {"type": "gonioreflectometer"}}})");
   const CliRun r = Brdfkit("run " + (d / "scene.json").string() + " --out " + (d / "out").string() + " --quiet");
@@ -241,6 +241,11 @@ TEST(Run, MeasuredMaterialsOfEveryFormat) {
   }
   const json check = json::parse(ReadText(d / "out" / "check_rgl" / "check.json"));
   EXPECT_EQ(check[0].at("model").get<std::string>(), "rgl");
+  // The table's interpolation keeps the adaptive rule from converging: each
+  // albedo spends its budget, here the scene's, not the default 400,000.
+  const double albedos = check[0].at("albedo_evaluations").get<double>();
+  EXPECT_GT(albedos, 10);
+  EXPECT_LT(check[0].at("albedo_integrand_evaluations").get<double>(), 50000 * albedos);
   EXPECT_TRUE(fs::exists(d / "out" / "measure_rgl" / "data.csv"));
   // A file whose header disagrees with its name is named at its key.
   WriteText(d / "fake.bsdf", "not a tensor file");
@@ -320,6 +325,8 @@ TEST(Run, MalformedScenesAreRejectedBeforeAnyWork) {
   bad_table["tasks"][0] = {{"name", "t"}, {"type", "albedo"}, {"preset", "cycles"}, {"tables", {"table_ggx_F"}}};
   json fixed_size = SmallScene();
   fixed_size["tasks"][0] = {{"name", "t"}, {"type", "albedo"}, {"preset", "cycles"}, {"size", 8}};
+  json small_budget = SmallScene();
+  small_budget["tasks"][5]["albedo_budget"] = 10;
   json bad_preset = SmallScene();
   bad_preset["tasks"][0] = {{"name", "t"}, {"type", "albedo"}, {"preset", "unreal"}};
   const std::vector<Case> cases = {
@@ -339,6 +346,7 @@ TEST(Run, MalformedScenesAreRejectedBeforeAnyWork) {
       {"bad_table", bad_table.dump(2), "tasks[0].tables[0]: preset 'cycles' has no table 'table_ggx_F'"},
       {"bad_preset", bad_preset.dump(2), "tasks[0].preset: unknown table preset 'unreal'"},
       {"fixed_size", fixed_size.dump(2), "tasks[0].size: preset 'cycles' has Cycles' fixed sizes"},
+      {"small_budget", small_budget.dump(2), "tasks[5].albedo_budget"},
   };
   for (const Case& c : cases) {
     const fs::path scene = d / (c.name + ".json");

@@ -319,6 +319,7 @@ void CheckTask::Parse(SceneReader& r, const Scene& s) {
   }
   t.sampling = r.Bool("sampling", true);
   t.sampling_samples = r.Integer("samples", 100000, 1000, 100000000);
+  t.albedo_budget = r.Integer("albedo_budget", validate::CheckOptions().albedo_budget, 1000, 1000000000);
 }
 
 void AlbedoTask::Parse(SceneReader& r, const Scene& /*scene*/) {

@@ -17,6 +17,7 @@
 #include "brdf/model.h"
 #include "data_synth/camera.h"
 #include "data_synth/instrument.h"
+#include "validate/check.h"
 
 namespace brdfkit::cli {
 
@@ -61,6 +62,7 @@ struct CheckTask : TaskTypeBase {
   std::vector<std::string> materials;
   bool sampling = true;
   std::int64_t sampling_samples = 100000;
+  std::int64_t albedo_budget = validate::CheckOptions().albedo_budget;
 
   void Parse(SceneReader& r, const Scene& s);
   std::vector<std::string> Materials() const { return materials; }

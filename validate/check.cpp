@@ -167,6 +167,7 @@ CheckResult CheckPlausibility(const Bxdf<double>& bxdf, const double* p, const C
   const auto albedo = [&](double mu, double phi) {
     const Estimate e = directional(mu, phi, io);
     ++r.albedo_evaluations;
+    r.albedo_integrand_evals += e.evals;
     int c;
     const double v = e.value.maxCoeff(&c);
     return Sample{mu, phi, std::isfinite(v) ? v : std::numeric_limits<double>::infinity(), e.error[c], e.value};
@@ -251,6 +252,7 @@ CheckResult CheckPlausibility(const Bxdf<double>& bxdf, const double* p, const C
     for (Sample* s : open) {
       const Estimate e = directional(s->mu, s->phi, tight);
       ++r.albedo_evaluations;
+      r.albedo_integrand_evals += e.evals;
       ++r.albedo_tightened;
       int c;
       const double v = e.value.maxCoeff(&c);

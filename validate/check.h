@@ -75,7 +75,8 @@ struct CheckResult {
   double albedo_at_grazing = 0;  // max channel at the smallest mu searched
   double albedo_at_normal = 0;
   bool rotation_invariant = true;
-  int albedo_evaluations = 0;
+  int albedo_evaluations = 0;           // directional albedos integrated
+  std::int64_t albedo_integrand_evals = 0;  // the integrand evaluations they took
   int albedo_tightened = 0;  // albedos integrated again with the larger budget
   // Values.
   double min_value = 0;

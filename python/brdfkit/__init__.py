@@ -34,7 +34,8 @@ def _existing(path, what):
     return p
 
 
-def check(model, params=None, *, sampling=True, samples=100000, random_pairs=4000, seed=1, threads=0):
+def check(model, params=None, *, sampling=True, samples=100000, random_pairs=4000, seed=1, albedo_budget=400000,
+          threads=0):
     """Physical plausibility of a model, as ``brdfkit check --json``.
 
     Parameters
@@ -54,6 +55,9 @@ def check(model, params=None, *, sampling=True, samples=100000, random_pairs=400
         Random direction pairs of the reciprocity and value checks.
     seed : int
         Seed of every random draw.
+    albedo_budget : int
+        Integrand evaluations per directional albedo of the energy search
+        (1000 to 1e9); a measured table spends all of it.
     threads : int
         Threads (0: every core).
 
@@ -63,7 +67,7 @@ def check(model, params=None, *, sampling=True, samples=100000, random_pairs=400
         reciprocity_max_rel_error, albedo_max, albedo_max_at_mu, min_value,
         nonfinite_count, pdf_integral, chi2_p_value, plausible, reasons, ...
     """
-    return _brdfkit._check(model, params, sampling, samples, random_pairs, seed, threads)
+    return _brdfkit._check(model, params, sampling, samples, random_pairs, seed, albedo_budget, threads)
 
 
 def albedo_table(model, params=None, *, axes="mu:32,alpha:32:0.001:1", nodes="uniform", tolerance=1e-6,

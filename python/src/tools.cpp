@@ -29,16 +29,19 @@ nlohmann::json FromPython(const py::handle& obj) {
 }
 
 py::dict Check(const py::object& model, const py::object& params, bool sampling, std::int64_t samples,
-               int random_pairs, std::uint64_t seed, int threads) {
+               int random_pairs, std::uint64_t seed, std::int64_t albedo_budget, int threads) {
   const ToolModel m = ToolModelArgument(model, params);
   if (samples < 1000 || samples > 100000000)
     throw ArgumentError("samples must lie in [1000, 100000000] (got " + std::to_string(samples) + ")");
   if (random_pairs < 1) throw ArgumentError("random_pairs must be at least 1");
+  if (albedo_budget < 1000 || albedo_budget > 1000000000)
+    throw ArgumentError("albedo_budget must lie in [1000, 1000000000] (got " + std::to_string(albedo_budget) + ")");
   validate::CheckOptions o;
   o.sampling = sampling;
   o.sampling_samples = samples;
   o.random_pairs = random_pairs;
   o.seed = seed;
+  o.albedo_budget = albedo_budget;
   validate::CheckResult r;
   RunTool(m, threads, [&](const CancelToken& token) {
     const CancellableBxdf b(*m.bxdf, token);
@@ -399,7 +402,7 @@ void WriteCsv(const std::string& path, const py::dict& data) {
 
 void BindTools(py::module_& m) {
   m.def("_check", &Check, py::arg("model"), py::arg("params"), py::arg("sampling"), py::arg("samples"),
-        py::arg("random_pairs"), py::arg("seed"), py::arg("threads"));
+        py::arg("random_pairs"), py::arg("seed"), py::arg("albedo_budget"), py::arg("threads"));
   m.def("_albedo_table", &AlbedoTableFn, py::arg("model"), py::arg("params"), py::arg("axes"), py::arg("nodes"),
         py::arg("tolerance"), py::arg("accept_error"), py::arg("channel"), py::arg("part"), py::arg("threads"));
   m.def("_albedo_preset", &AlbedoPreset, py::arg("name"), py::arg("size"), py::arg("tables"), py::arg("tolerance"),

@@ -23,6 +23,25 @@ def test_check_without_sampling_says_so():
     assert r["pdf_integral"] is None and r["chi2_p_value"] is None
 
 
+def test_check_albedo_budget_reaches_the_search(tmp):
+    # A MERL table's nearest-bin lookup is a step function: the adaptive
+    # rule cannot reach the check's 1e-8 and spends each albedo's budget.
+    m = brdfkit.Model("lambert+ggx", {"lambert.albedo": 0.2, "ggx.alpha": 0.3, "ggx.f0": 0.04})
+    brdfkit.write(tmp / "m.binary", m)
+    model = "merl:" + str(tmp / "m.binary")
+    small = brdfkit.check(model, sampling=False, albedo_budget=20000)
+    ref = cli_json("check", "--model", model, "--no-sampling", "--albedo-budget", 20000, "--json")
+    assert without_times(small) == without_times(ref)
+    large = brdfkit.check(model, sampling=False, albedo_budget=200000)
+    per_albedo = [r["albedo_integrand_evaluations"] / r["albedo_evaluations"] for r in (small, large)]
+    assert per_albedo[0] < 50000 and per_albedo[1] > 150000
+    assert large["albedo_max_error"] <= small["albedo_max_error"]
+    # The two estimates of the table's largest albedo agree within their bars.
+    assert abs(small["albedo_max"] - large["albedo_max"]) <= small["albedo_max_error"] + large["albedo_max_error"]
+    with pytest.raises(ValueError, match="albedo_budget"):
+        brdfkit.check(model, sampling=False, albedo_budget=10)
+
+
 def test_albedo_table_equals_cli():
     py = brdfkit.albedo_table("ggx", axes="mu:5,alpha:3:0.1:1", tolerance=1e-5)
     ref = cli_json("albedo", "--model", "ggx", "--axes", "mu:5,alpha:3:0.1:1", "--tolerance", 1e-5, "--json")
