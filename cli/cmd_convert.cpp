@@ -23,7 +23,10 @@ void RegisterConvert(CLI::App& app) {
   cmd->add_option("--rgl-theta-i", o.rgl.theta_i, "RGL: incident elevation slices")->capture_default_str();
   cmd->add_option("--rgl-phi-i", o.rgl.phi_i, "RGL: incident azimuth slices; 0 isotropic (default: 24 for anisotropic sources)");
   cmd->add_option("--rgl-samples", o.rgl.samples, "RGL: value table nodes per axis and slice")->capture_default_str();
-  cmd->add_option("--rgl-vndf", o.rgl.vndf, "RGL: vndf nodes per axis")->capture_default_str();
+  cmd->add_option("--rgl-vndf", o.rgl.vndf,
+                  "RGL: vndf nodes along the azimuth of the normal (default: 128 isotropic, 64 anisotropic)");
+  cmd->add_option("--rgl-vndf-theta", o.rgl.vndf_theta,
+                  "RGL: vndf nodes along the elevation of the normal (default: as --rgl-vndf)");
   cmd->add_option("--rgl-ndf", o.rgl.ndf, "RGL: ndf nodes per axis")->capture_default_str();
   cmd->add_option("--step", o.step_deg, "ASTM / CSV: grid step in degrees")->capture_default_str();
   cmd->add_option("--phi-i", o.phi_i, "ASTM / CSV: incident azimuths (default 1, or 8 for anisotropic sources)");

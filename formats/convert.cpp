@@ -119,12 +119,13 @@ nlohmann::json WriteFormat(const std::string& path, const BrdfFunction& f, const
     case Format::kRgl: {
       RglOptions r = o.rgl;
       if (r.phi_i < 0) r.phi_i = o.anisotropic ? 24 : 0;
+      r = WithDefaults(r);
       const TensorFile t = MakeRgl(f, r);
       const RglBsdf back = RglBsdf::FromTensors(t, "RGL file '" + path + "'");
       const RglAccuracy acc = MeasureRglAccuracy(back, f);
       t.Write(path);
       j["resolution"] = {{"theta_i", r.theta_i}, {"theta_max_deg", r.theta_max_deg}, {"phi_i", r.phi_i},
-                         {"ndf", r.ndf}, {"sigma", r.sigma}, {"vndf", r.vndf}, {"samples", r.samples}};
+                         {"ndf", r.ndf}, {"sigma", r.sigma}, {"vndf", r.vndf}, {"vndf_theta", r.vndf_theta}, {"samples", r.samples}};
       j["isotropic"] = r.phi_i == 0;
       j["reconstruction"] = {{"max_relative", acc.max_relative}, {"p99_relative", acc.p99_relative},
                              {"mean_relative", acc.mean_relative}, {"points", acc.points},

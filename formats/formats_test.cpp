@@ -45,7 +45,7 @@ struct Analytic {
 // Reduced resolutions keep the tests fast; the defaults are measured in bench/.
 RglOptions Small() {
   RglOptions o;
-  o.theta_i = 12;
+  o.theta_i = 16;
   o.ndf = 128;
   o.sigma = 32;
   o.vndf = 48;
@@ -135,17 +135,16 @@ TEST(RglWriter, NodesReproduceTheSource) {
 // degrees (all between slice nodes), wo on a 1 x 2 degree grid up to theta_o
 // = 89.5 degrees, where f cos(theta_o) is above 1 % of its maximum. Up to
 // theta_o = 60 degrees the error stays below 1 % for every material; beyond,
-// it grows towards the horizon, where f cos goes to 0 (bench/RESULTS.md):
-// mean, 99th percentile and maximum are bounded at 1.3 times what was
-// measured there.
+// at grazing theta_i, it reaches 0.7-3.6 % (bench/RESULTS.md): mean, 99th
+// percentile and maximum are bounded at 1.3 times what was measured there.
 TEST(RglWriter, ReconstructionAccuracyAtTheDefaultResolution) {
   struct Case {
     const char* spec;
     const char* params;
     double mean, p99, max;
-  } cases[] = {{"lambert", "albedo=0.8", 0.0015, 0.010, 0.091},     {"ggx", "alpha=0.05", 0.00033, 0.0010, 0.058},
-               {"ggx", "alpha=0.2", 0.00028, 0.0029, 0.057},        {"ggx", "alpha=1", 0.0012, 0.012, 0.22},
-               {"beckmann", "alpha=0.05", 0.00072, 0.0049, 0.0076}, {"beckmann", "alpha=0.5", 0.00069, 0.0072, 0.12}};
+  } cases[] = {{"lambert", "albedo=0.8", 0.0014, 0.0089, 0.023},    {"ggx", "alpha=0.05", 0.00031, 0.00095, 0.0078},
+               {"ggx", "alpha=0.2", 0.00027, 0.0028, 0.011},        {"ggx", "alpha=1", 0.00095, 0.0081, 0.036},
+               {"beckmann", "alpha=0.05", 0.00073, 0.0051, 0.0071}, {"beckmann", "alpha=0.5", 0.0006, 0.0063, 0.024}};
   for (const Case& c : cases) {
     SCOPED_TRACE(std::string(c.spec) + " " + c.params);
     const Analytic g(c.spec, c.params);
@@ -157,6 +156,31 @@ TEST(RglWriter, ReconstructionAccuracyAtTheDefaultResolution) {
     EXPECT_LT(a.max_relative, 1.3 * c.max);
     EXPECT_LT(MeasureRglAccuracy(r, g.Function(), 80, 10, 0.01, 60).max_relative, 0.01);
   }
+}
+
+// An isotropic file's vndf rows are aligned (formats/rgl_writer.h): the
+// normal that reflects wi onto the horizon, found here by bisection on
+// cos(theta_o) along each row, maps to the square coordinate s_x = 0.6 in
+// every row, at the slices and between them.
+TEST(RglWriter, IsotropicRowsPutTheHorizonAtOneSquareCoordinate) {
+  const Analytic g("lambert", "albedo=0.5");
+  const RglBsdf r = RglBsdf::FromTensors(MakeRgl(g.Function(), RglOptions{}), "test");
+  double worst = 0;
+  for (double ti_deg = 0; ti_deg <= 60; ti_deg += 7.3)
+    for (double phi_deg = -180; phi_deg <= 180; phi_deg += 7.5) {
+      const double ti = ti_deg * kPi / 180, phi = phi_deg * kPi / 180;
+      const Eigen::Vector3d wi = RglBsdf::Direction(ti, 0);
+      auto cos_o = [&](double theta_m) {
+        const Eigen::Vector3d wm = RglBsdf::Direction(theta_m, phi);
+        return (2 * wi.dot(wm) * wm - wi).z();
+      };
+      double lo = 0, hi = kPi / 2;  // cos_o(lo) > 0 > cos_o(hi)
+      for (int k = 0; k < 60; ++k) (cos_o((lo + hi) / 2) > 0 ? lo : hi) = (lo + hi) / 2;
+      const double p[2] = {0.0, ti};
+      const auto s = r.vndf.Invert(RglBsdf::ThetaToU(lo), RglBsdf::PhiToU(phi), r.vndf.Mix(p));
+      worst = std::max(worst, std::abs(s[0] - 0.6));
+    }
+  EXPECT_LT(worst, 0.001);
 }
 
 // Lambert rho/pi through every format.
@@ -279,7 +303,7 @@ TEST(Formats, BadRglFilesAreNamed) {
   o.samples = o.vndf = 8;
   o.ndf = 16;
   o.sigma = 8;
-  o.theta_i = 3;
+  o.theta_i = 16;
   const TensorFile good = MakeRgl(l.Function(), o);
   const std::vector<unsigned char> bytes = good.Serialise();
   const fs::path p = Scratch("bad.bsdf");

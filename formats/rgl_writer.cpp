@@ -1,6 +1,7 @@
 #include "formats/rgl_writer.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <stdexcept>
 #include <string>
@@ -14,14 +15,21 @@ namespace {
 // the lobes' tails (values f cos 4 sigma / D stay smooth where f cos is
 // above 1e-12 of its peak), high enough that the values stay within float.
 constexpr double kNdfFloor = 1e-12;
-// Shares of the vndf (the warp of the value nodes): the visible normals
-// (with a uniform part kVndfSpread / pi added to D for the tails), a uniform
-// density over the warped square (regular at the pole u_x = 0, where the
-// visible-normal density vanishes as u^3, and in the azimuth rows facing
-// away from wi, which hold few visible normals), and a band around the
-// horizon of wo, uniform in cos(theta_o) over about |cos(theta_o)| <
-// kHorizonBand, so that the cells crossing the horizon are short.
-constexpr double kVndfSpread = 0.2, kLobeShare = 0.35, kUniformShare = 0.25, kBandShare = 0.4, kHorizonBand = 0.2;
+// The vndf of an isotropic slice, row by row (a row: one azimuth of wm
+// relative to wi, u_x from the pole to the equator). Every row holds the
+// same mass, and within it a band around the horizon of wo whose density in
+// cos(theta_o) is the same in every row and slice: kBandShare times a
+// Gaussian of cos(theta_o) / kHorizonBand. The rest (the visible normals,
+// a kUniformShare of uniform density for the pole and the rows facing away
+// from wi) fades out within about kTaper of the horizon in cos(theta_o) and
+// is scaled on each side of the horizon so that the row's CDF reaches
+// 1 - kBelowHorizon at the horizon: the horizon then sits at the same
+// square coordinate s_x in every row, the values near it are the same
+// function of s in every row and slice, and their interpolation (bilinear
+// within a slice, linear across slices) follows f cos(theta_o) to the
+// horizon.
+constexpr double kVndfSpread = 0.2, kLobeShare = 0.35, kUniformShare = 0.5, kBandShare = 0.4, kHorizonBand = 0.2,
+                 kTaper = 0.2, kBelowHorizon = 0.4;
 
 double Luminance(const Rgb<double>& c) { return 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]; }
 
@@ -39,13 +47,65 @@ Rgb<double> SourceAt(const BrdfFunction& f, const Eigen::Vector3d& wi, const Eig
   return v.max(0.0);
 }
 
+// One row of an isotropic slice's vndf (above): theta_i of the slice, phi
+// the azimuth of wm relative to wi, lobe the row of the visible normals
+// times lobe_scale (a density over the square), n nodes.
+void AlignedRow(double theta_i, double phi, const double* lobe, double lobe_scale, std::size_t n, float* out) {
+  const double h = 1.0 / double(n - 1);
+  // cos(theta_o) of the reflection of wi about wm = (theta, phi) is
+  // r cos(2 theta - delta): one zero, at theta = (delta + pi / 2) / 2.
+  const double a = std::sin(theta_i) * std::cos(phi), c = std::cos(theta_i);
+  const double delta = std::atan2(a, c), r = std::hypot(a, c);
+  const double xh = RglBsdf::ThetaToU((delta + kPi / 2) / 2) / h;  // in node units
+  const std::size_t k = std::min(static_cast<std::size_t>(xh), n - 2);
+  std::vector<double> band(n), left(n, 0.0), right(n, 0.0);
+  for (std::size_t x = 0; x < n; ++x) {
+    const double ux = double(x) * h, theta = RglBsdf::UToTheta(ux);
+    const double z = r * std::cos(2 * theta - delta) / kHorizonBand, zt = z * kHorizonBand / kTaper;
+    const double dz = 2 * r * std::abs(std::sin(2 * theta - delta)) * kPi * ux / kHorizonBand;  // |dz / du_x|
+    band[x] = kBandShare * std::exp(-z * z) * dz / std::sqrt(kPi);
+    (x <= k ? left : right)[x] = (kLobeShare * lobe[x] * lobe_scale + kUniformShare) * (1 - std::exp(-zt * zt));
+  }
+  // Integrals over [0, horizon] and over the row of the piecewise-linear density.
+  auto integrals = [&](const std::vector<double>& v) {
+    std::array<double, 2> m = {0.0, 0.0};
+    for (std::size_t j = 0; j + 1 < n; ++j) {
+      const double t = std::clamp(xh - double(j), 0.0, 1.0);
+      m[0] += h * (v[j] * t + (v[j + 1] - v[j]) * t * t / 2);
+      m[1] += h * (v[j] + v[j + 1]) / 2;
+    }
+    return m;
+  };
+  const auto il = integrals(left), ir = integrals(right), ib = integrals(band);
+  // alpha, beta: the scales of the rest above and below the horizon, so
+  // that the row holds 1 - kBelowHorizon up to the horizon and 1 in all.
+  const double r1 = 1 - kBelowHorizon - ib[0], r2 = kBelowHorizon - (ib[1] - ib[0]);
+  const double a11 = il[0], a12 = ir[0], a21 = il[1] - il[0], a22 = ir[1] - ir[0], det = a11 * a22 - a12 * a21;
+  double alpha = det != 0 ? (r1 * a22 - a12 * r2) / det : 1, beta = det != 0 ? (a11 * r2 - a21 * r1) / det : 1;
+  // Where the band alone overfills a side (rows of grazing slices) the rest
+  // stays positive, and that row's CDF misses 1 - kBelowHorizon at its horizon.
+  alpha = std::max(alpha, 1e-3);
+  beta = std::max(beta, 1e-3);
+  for (std::size_t x = 0; x < n; ++x) out[x] = static_cast<float>(alpha * left[x] + beta * right[x] + band[x]);
+}
+
 }  // namespace
 
-TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& o) {
+RglOptions WithDefaults(RglOptions o) {
+  // Isotropic files take 128 vndf rows: their aligned rows (above) follow
+  // the horizon's sweep in azimuth; anisotropic files, whose vndf is
+  // repeated per phi_i slice, keep 64.
+  if (o.vndf == 0) o.vndf = o.phi_i == 0 ? 128 : 64;
+  if (o.vndf_theta == 0) o.vndf_theta = o.vndf;
+  return o;
+}
+
+TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
+  const RglOptions o = WithDefaults(options);
   Check(o.theta_i >= 2 && o.theta_i <= 1024, "theta_i slices must be 2 to 1024");
   Check(o.phi_i == 0 || (o.phi_i >= 3 && o.phi_i <= 1024), "phi_i slices must be 0 (isotropic) or 3 to 1024");
   Check(o.theta_max_deg > 0 && o.theta_max_deg < 90, "theta_max must be in (0, 90) degrees");
-  for (int r : {o.ndf, o.sigma, o.vndf, o.samples}) Check(r >= 2 && r <= 4096, "resolutions must be 2 to 4096");
+  for (int r : {o.ndf, o.sigma, o.vndf, o.vndf_theta, o.samples}) Check(r >= 2 && r <= 4096, "resolutions must be 2 to 4096");
   const bool iso = o.phi_i == 0;
   using RB = RglBsdf;
 
@@ -137,54 +197,43 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& o) {
   const std::size_t np = phi_nodes.size(), nt = theta_nodes.size();
   auto slice_wi = [&](std::size_t a, std::size_t b) { return RB::Direction(theta_nodes[b], iso ? 0.0 : phi_nodes[a]); };
 
-  // 3. vndf: three shares, each normalised over the square (trapezoidal
-  // rule on the nodes, as the reader normalises).
-  const std::size_t nv = static_cast<std::size_t>(o.vndf);
-  auto mass_of = [&](const std::vector<double>& q) {
-    double m = 0;
-    for (std::size_t y = 0; y + 1 < nv; ++y)
-      for (std::size_t x = 0; x + 1 < nv; ++x)
-        m += 0.25 * (q[y * nv + x] + q[y * nv + x + 1] + q[(y + 1) * nv + x] + q[(y + 1) * nv + x + 1]);
-    return m;
-  };
-  std::vector<float> vndf(np * nt * nv * nv);
-  std::vector<double> lobe(nv * nv), band(nv * nv);
+  // 3. vndf over vy rows (azimuth of wm) x vx columns (elevation).
+  const std::size_t vy = static_cast<std::size_t>(o.vndf), vx = static_cast<std::size_t>(o.vndf_theta);
+  const double hx = 1.0 / double(vx - 1);
+  std::vector<float> vndf(np * nt * vy * vx);
+  std::vector<double> lobe(vy * vx);
   for (std::size_t a = 0; a < np; ++a)
     for (std::size_t b = 0; b < nt; ++b) {
-      float* out = vndf.data() + (a * nt + b) * nv * nv;
+      float* out = vndf.data() + (a * nt + b) * vy * vx;
       if (iso && a > 0) {
-        std::copy(vndf.begin() + std::ptrdiff_t(b * nv * nv), vndf.begin() + std::ptrdiff_t((b + 1) * nv * nv), out);
+        std::copy_n(vndf.begin() + std::ptrdiff_t(b * vy * vx), vy * vx, out);
         continue;
       }
       const Eigen::Vector3d wi = slice_wi(a, b);
       const double sig = sigma_table.Eval(RB::ThetaToU(theta_nodes[b]), RB::PhiToU(iso ? 0.0 : phi_nodes[a]));
-      // cos(theta_o) of the reflection of wi about the normal at u.
-      auto cos_o = [&](double ux, double uy) {
-        const Eigen::Vector3d wm = RB::Direction(RB::UToTheta(ux), RB::UToPhi(uy));
-        return 2 * wi.dot(wm) * wm.z() - wi.z();
-      };
-      for (std::size_t y = 0; y < nv; ++y)
-        for (std::size_t x = 0; x < nv; ++x) {
-          const double ux = x / double(nv - 1), uy = y / double(nv - 1), theta = RB::UToTheta(ux);
+      // The visible normals (D + kVndfSpread sigma / pi) <wi, wm>+ times the
+      // square's Jacobian u_x sin(theta_m), normalised over the square
+      // (trapezoidal rule on the nodes, as the reader normalises).
+      double mass = 0;
+      for (std::size_t y = 0; y < vy; ++y)
+        for (std::size_t x = 0; x < vx; ++x) {
+          const double ux = x * hx, uy = y / double(vy - 1), theta = RB::UToTheta(ux);
           const Eigen::Vector3d wm = RB::Direction(theta, RB::UToPhi(uy));
-          lobe[y * nv + x] = (ndf_table.Eval(ux, uy) + kVndfSpread * sig / kPi) * std::max(0.0, wi.dot(wm)) * ux * std::sin(theta);
-          // Central difference; past u_x = 0 or 1 the direction formula
-          // continues smoothly, so the end nodes need no special case.
-          constexpr double h = 1e-4;
-          const double z = cos_o(ux, uy) / kHorizonBand, dz = (cos_o(ux + h, uy) - cos_o(ux - h, uy)) / (2 * h);
-          band[y * nv + x] = std::exp(-z * z) * std::abs(dz);
+          const double q = (ndf_table.Eval(ux, uy) + kVndfSpread * sig / kPi) * std::max(0.0, wi.dot(wm)) * ux * std::sin(theta);
+          lobe[y * vx + x] = q;
+          mass += q * node_weight(x, vx) * node_weight(y, vy);
         }
       // Anisotropic files interpolate the values across phi_i slices at fixed
-      // s as well; there the uniform and band shares raise the error
-      // (measured in bench/RESULTS.md), so their vndf is the visible normals.
-      const double lobe_share = iso ? kLobeShare : 1.0, uniform_share = iso ? kUniformShare : 0.0,
-                   band_share = iso ? kBandShare : 0.0;
-      const double ml = mass_of(lobe), mb = mass_of(band), mu = double((nv - 1) * (nv - 1));
-      for (std::size_t i = 0; i < nv * nv; ++i)
-        out[i] = static_cast<float>(lobe_share * lobe[i] / ml + uniform_share / mu +
-                                    (mb > 0 ? band_share * band[i] / mb : 0.0));  // no band mass: no horizon in reach
+      // s as well; there the aligned rows raise the error (measured in
+      // bench/RESULTS.md), so their vndf is the visible normals alone.
+      if (!iso) {
+        for (std::size_t i = 0; i < vy * vx; ++i) out[i] = static_cast<float>(lobe[i] / mass);
+        continue;
+      }
+      for (std::size_t y = 0; y < vy; ++y)
+        AlignedRow(theta_nodes[b], RB::UToPhi(y / double(vy - 1)), lobe.data() + y * vx, 1 / mass, vx, out + y * vx);
     }
-  const Warp2D vndf_warp(vndf, nv, nv, {phi_nodes, theta_nodes}, true);
+  const Warp2D vndf_warp(vndf, vy, vx, {phi_nodes, theta_nodes}, true);
 
   // 4. values.
   const std::size_t n = static_cast<std::size_t>(o.samples), plane = n * n;
@@ -227,7 +276,7 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& o) {
   t.Add("phi_i", std::vector<float>(phi_nodes.begin(), phi_nodes.end()), {np});
   t.Add("ndf", ndf, {nd, nd});
   t.Add("sigma", sigma, {ns, ns});
-  t.Add("vndf", vndf, {np, nt, nv, nv});
+  t.Add("vndf", vndf, {np, nt, vy, vx});
   t.Add("luminance", lum, {np, nt, n, n});
   t.Add("rgb", rgb, {np, nt, 3, n, n});
   return t;

@@ -14,13 +14,18 @@
 //  2. sigma(wi) = int D(m) <wi, m>+ dm, by the trapezoidal rule over the
 //     ndf nodes;
 //  3. vndf per slice (phi_i, theta_i), over the warped square (jacobian =
-//     1): 35 % visible normals (D(wm) + 0.2 sigma / pi) <wi, wm>+ u_x
-//     sin(theta_m), 25 % uniform (regular at the pole u_x = 0, where the
-//     visible normals' density vanishes as u_x^3, and in the rows facing away
-//     from wi), 40 % a band uniform in cos(theta_o) around the horizon of wo
-//     (|cos(theta_o)| up to about 0.2), so that the cells crossing the
-//     horizon are short; anisotropic files, whose values are also
-//     interpolated across phi_i, keep the visible normals alone;
+//     1). Isotropic files: aligned rows (each row one azimuth of wm, all
+//     of the same mass): a band around the horizon of wo whose density in
+//     cos(theta_o) is the same in every row and slice (40 %, a Gaussian of
+//     width 0.2 in cos(theta_o)), and the rest, visible normals (D(wm) +
+//     0.2 sigma / pi) <wi, wm>+ u_x sin(theta_m) plus a uniform density
+//     (regular at the pole u_x = 0, where the visible normals vanish as
+//     u_x^3), faded out near the horizon and scaled on its two sides so
+//     that every row's CDF reaches 0.6 at the horizon. The values near the
+//     horizon are then one smooth function of s across rows and slices,
+//     which the bilinear and the slice interpolation follow. Anisotropic
+//     files, whose values are also interpolated across phi_i, keep the
+//     visible normals alone;
 //  4. rgb at the uniform N x M nodes s of each slice: wm = V(s), the warp of
 //     the float32 vndf as the reader builds it, wo the reflection of wi
 //     about wm, value = f(wi, wo) cos(theta_o) 4 sigma(wi) / D(wm) with
@@ -52,10 +57,14 @@ struct RglOptions {
   int phi_i = 0;             // 0: isotropic; otherwise azimuth slices over [-pi, pi] (the last repeats the first)
   int ndf = 256;             // ndf resolution (square)
   int sigma = 64;            // sigma resolution (square)
-  int vndf = 64;             // vndf resolution per slice (square)
+  int vndf = 0;              // vndf rows per slice (azimuth of wm); 0: 128 isotropic, 64 anisotropic
+  int vndf_theta = 0;        // vndf columns per slice (elevation of wm); 0: as vndf
   int samples = 64;          // value tables per slice: samples x samples
   std::string description = "written by brdfkit";
 };
+
+// The options with the automatic resolutions (0) filled in.
+RglOptions WithDefaults(RglOptions options);
 
 // Throws std::invalid_argument on bad options, std::runtime_error on
 // non-finite values of f.
