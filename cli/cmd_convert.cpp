@@ -30,7 +30,7 @@ void RegisterConvert(CLI::App& app) {
   cmd->add_option("--rgl-ndf", o.rgl.ndf, "RGL: ndf nodes per axis")->capture_default_str();
   cmd->add_option("--step", o.step_deg, "ASTM / CSV: grid step in degrees")->capture_default_str();
   cmd->add_option("--phi-i", o.phi_i, "ASTM / CSV: incident azimuths (default 1, or 8 for anisotropic sources)");
-  cmd->add_flag("--anisotropic", o.anisotropic, "treat the source as anisotropic (implied for UTIA files)");
+  cmd->add_flag("--anisotropic", o.anisotropic, "treat the source as anisotropic (implied for UTIA files, anisotropic tables and models)");
   cmd->add_flag("--no-sidecar", no_sidecar, "do not write OUT.json");
   o.rgl.phi_i = -1;
   cmd->callback([] {
@@ -44,7 +44,11 @@ void RegisterConvert(CLI::App& app) {
       auto m = std::make_shared<LoadedModel>(LoadModel(margs));
       auto b = std::shared_ptr<const Bxdf<double>>(m->model.Make<double>().release());
       f = [m, b](const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) { return b->Eval(m->params.data(), wi, wo); };
-      side["source"] = {{"model", m->model.Spec()}, {"params", FormatParams(m->model.Info(), m->params)}};
+      const bool anisotropic = formats::IsAnisotropic(f);
+      o.anisotropic = o.anisotropic || anisotropic;
+      side["source"] = {{"model", m->model.Spec()},
+                        {"params", FormatParams(m->model.Info(), m->params)},
+                        {"anisotropic", anisotropic}};
     } else {
       if (files.size() != 2) throw UsageError("convert: give IN OUT (or --model SPEC OUT)");
       out = files[1];

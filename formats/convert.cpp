@@ -3,6 +3,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <random>
 #include <stdexcept>
 
 #include "brdf/astm.h"
@@ -98,6 +99,21 @@ Source LoadSource(const std::string& path) {
     }
   }
   return s;
+}
+
+bool IsAnisotropic(const BrdfFunction& f) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> theta(0.05, 1.4), phi(0.0, 2 * kPi);
+  for (int k = 0; k < 64; ++k) {
+    const double ti = theta(rng), pi = phi(rng), to = theta(rng), po = phi(rng);
+    const Rgb<double> a = f(SphericalDirection(ti, pi), SphericalDirection(to, po));
+    for (double turn : {0.9, 2.3}) {
+      const Rgb<double> b = f(SphericalDirection(ti, pi + turn), SphericalDirection(to, po + turn));
+      // Relative to the larger value; an absolute 1e-12 for values near 0.
+      if (((a - b).abs() > 1e-6 * a.abs().max(b.abs()) + 1e-12).any()) return true;
+    }
+  }
+  return false;
 }
 
 nlohmann::json WriteFormat(const std::string& path, const BrdfFunction& f, const ConvertOptions& o) {

@@ -33,6 +33,11 @@ struct Source {
 // Reads a measured file as a BRDF function.
 Source LoadSource(const std::string& path);
 
+// Whether f changes when both directions turn about the normal: 64 fixed
+// direction pairs, each turned by 0.9 and 2.3 radians, compared to 1e-6
+// relative. Decides a model source's isotropy (convert --model).
+bool IsAnisotropic(const BrdfFunction& f);
+
 struct ConvertOptions {
   RglOptions rgl;             // rgl.phi_i < 0: isotropic unless the source is anisotropic (then 24)
   double step_deg = 5;        // ASTM / CSV grid: theta_i, theta_o 0..85 and phi_o 0..360 in this step

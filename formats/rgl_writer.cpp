@@ -15,8 +15,8 @@ namespace {
 // the lobes' tails (values f cos 4 sigma / D stay smooth where f cos is
 // above 1e-12 of its peak), high enough that the values stay within float.
 constexpr double kNdfFloor = 1e-12;
-// The vndf of an isotropic slice, row by row (a row: one azimuth of wm
-// relative to wi, u_x from the pole to the equator). Every row holds the
+// The vndf of a slice, row by row (a row: one azimuth of wm, u_x from the
+// pole to the equator). Every row holds the
 // same mass, and within it a band around the horizon of wo whose density in
 // cos(theta_o) is the same in every row and slice: kBandShare times a
 // Gaussian of cos(theta_o) / kHorizonBand. The rest (the visible normals,
@@ -93,8 +93,9 @@ void AlignedRow(double theta_i, double phi, const double* lobe, double lobe_scal
 
 RglOptions WithDefaults(RglOptions o) {
   // Isotropic files take 128 vndf rows: their aligned rows (above) follow
-  // the horizon's sweep in azimuth; anisotropic files, whose vndf is
-  // repeated per phi_i slice, keep 64.
+  // the horizon's sweep in azimuth (measured in bench/RESULTS.md);
+  // anisotropic files, which store a vndf for each of their phi_i slices,
+  // keep 64.
   if (o.vndf == 0) o.vndf = o.phi_i == 0 ? 128 : 64;
   if (o.vndf_theta == 0) o.vndf_theta = o.vndf;
   return o;
@@ -223,15 +224,10 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
           lobe[y * vx + x] = q;
           mass += q * node_weight(x, vx) * node_weight(y, vy);
         }
-      // Anisotropic files interpolate the values across phi_i slices at fixed
-      // s as well; there the aligned rows raise the error (measured in
-      // bench/RESULTS.md), so their vndf is the visible normals alone.
-      if (!iso) {
-        for (std::size_t i = 0; i < vy * vx; ++i) out[i] = static_cast<float>(lobe[i] / mass);
-        continue;
-      }
+      // Rows of anisotropic files are absolute azimuths of wm.
+      const double phi_i = iso ? 0.0 : phi_nodes[a];
       for (std::size_t y = 0; y < vy; ++y)
-        AlignedRow(theta_nodes[b], RB::UToPhi(y / double(vy - 1)), lobe.data() + y * vx, 1 / mass, vx, out + y * vx);
+        AlignedRow(theta_nodes[b], RB::UToPhi(y / double(vy - 1)) - phi_i, lobe.data() + y * vx, 1 / mass, vx, out + y * vx);
     }
   const Warp2D vndf_warp(vndf, vy, vx, {phi_nodes, theta_nodes}, true);
 

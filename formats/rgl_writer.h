@@ -14,18 +14,17 @@
 //  2. sigma(wi) = int D(m) <wi, m>+ dm, by the trapezoidal rule over the
 //     ndf nodes;
 //  3. vndf per slice (phi_i, theta_i), over the warped square (jacobian =
-//     1). Isotropic files: aligned rows (each row one azimuth of wm, all
-//     of the same mass): a band around the horizon of wo whose density in
-//     cos(theta_o) is the same in every row and slice (40 %, a Gaussian of
-//     width 0.2 in cos(theta_o)), and the rest, visible normals (D(wm) +
-//     0.2 sigma / pi) <wi, wm>+ u_x sin(theta_m) plus a uniform density
-//     (regular at the pole u_x = 0, where the visible normals vanish as
-//     u_x^3), faded out near the horizon and scaled on its two sides so
-//     that every row's CDF reaches 0.6 at the horizon. The values near the
-//     horizon are then one smooth function of s across rows and slices,
-//     which the bilinear and the slice interpolation follow. Anisotropic
-//     files, whose values are also interpolated across phi_i, keep the
-//     visible normals alone;
+//     1), in aligned rows (each row one azimuth of wm, all of the same
+//     mass): a band around the horizon of wo whose density in cos(theta_o)
+//     is the same in every row and slice (40 %, a Gaussian of width 0.2 in
+//     cos(theta_o)), and the rest, visible normals (D(wm) + 0.2 sigma / pi)
+//     <wi, wm>+ u_x sin(theta_m) plus a uniform density (regular at the
+//     pole u_x = 0, where the visible normals vanish as u_x^3), faded out
+//     near the horizon and scaled on its two sides so that every row's CDF
+//     reaches 0.6 at the horizon. The values near the horizon are then one
+//     smooth function of s across rows and slices (theta_i, and phi_i in
+//     anisotropic files), which the bilinear and the slice interpolation
+//     follow;
 //  4. rgb at the uniform N x M nodes s of each slice: wm = V(s), the warp of
 //     the float32 vndf as the reader builds it, wo the reflection of wi
 //     about wm, value = f(wi, wo) cos(theta_o) 4 sigma(wi) / D(wm) with
