@@ -389,6 +389,13 @@ TEST(Formats, ConvertCommand) {
   EXPECT_EQ(r.code, 2) << r.out;
   EXPECT_NE(r.out.find(bad.string()), std::string::npos) << r.out;
   EXPECT_FALSE(fs::exists(out2));
+  const fs::path out3 = Scratch("cmd_bad_res.bsdf");
+  fs::remove(out3);
+  const auto res = test::Brdfkit("convert --model lambert --rgl-vndf-theta 1 " + out3.string());
+  EXPECT_EQ(res.code, 2) << res.out;
+  EXPECT_NE(res.out.find("vndf_theta must be 2 to 4096, got 1"), std::string::npos) << res.out;
+  EXPECT_FALSE(fs::exists(out3));
+  EXPECT_FALSE(fs::exists(out3.string() + ".json"));
   const auto ok = test::Brdfkit("convert --model lambert --params albedo=0.4 --rgl-samples 16 --rgl-vndf 16 --rgl-theta-i 8 " +
                                 out.string());
   ASSERT_EQ(ok.code, 0) << ok.out;

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <stdexcept>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace brdfkit::formats {
@@ -106,7 +107,10 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
   Check(o.theta_i >= 2 && o.theta_i <= 1024, "theta_i slices must be 2 to 1024");
   Check(o.phi_i == 0 || (o.phi_i >= 3 && o.phi_i <= 1024), "phi_i slices must be 0 (isotropic) or 3 to 1024");
   Check(o.theta_max_deg > 0 && o.theta_max_deg < 90, "theta_max must be in (0, 90) degrees");
-  for (int r : {o.ndf, o.sigma, o.vndf, o.vndf_theta, o.samples}) Check(r >= 2 && r <= 4096, "resolutions must be 2 to 4096");
+  const std::pair<const char*, int> resolutions[] = {
+      {"ndf", o.ndf}, {"sigma", o.sigma}, {"vndf", o.vndf}, {"vndf_theta", o.vndf_theta}, {"samples", o.samples}};
+  for (const auto& [name, r] : resolutions)
+    Check(r >= 2 && r <= 4096, std::string("resolution ") + name + " must be 2 to 4096, got " + std::to_string(r));
   const bool iso = o.phi_i == 0;
   using RB = RglBsdf;
 
