@@ -124,7 +124,9 @@ nlohmann::json WriteFormat(const std::string& path, const BrdfFunction& f, const
     case Format::kMerl: {
       MerlTable::FromFunction(f).Write(path);
       j["resolution"] = {{"theta_h", 90}, {"theta_d", 90}, {"phi_d", 180}};
-      j["note"] = "isotropic: tabulated at phi_h = 0";
+      j["note"] = o.anisotropic ? "the source is anisotropic and MERL isotropic: tabulated at phi_h = 0, the "
+                                  "variation with phi_h is lost"
+                                : "isotropic: tabulated at phi_h = 0";
       break;
     }
     case Format::kUtia: {

@@ -378,6 +378,12 @@ TEST(Formats, ModelSourcesAreAnisotropicWhenTheyChangeAsTheSurfaceTurns) {
   const std::string side = test::ReadText(out.string() + ".json");
   EXPECT_NE(side.find("\"anisotropic\": true"), std::string::npos) << side;
   EXPECT_NE(side.find("\"phi_i\": 8"), std::string::npos) << side;
+  // MERL is isotropic: the note says what is lost, on stderr and in the sidecar.
+  const fs::path merl = Scratch("aniso.binary");
+  const auto rm = test::Brdfkit("convert --model ggx_aniso --params alpha_x=0.1,alpha_y=0.4 " + merl.string());
+  ASSERT_EQ(rm.code, 0) << rm.out;
+  EXPECT_NE(rm.out.find("the source is anisotropic and MERL isotropic"), std::string::npos) << rm.out;
+  EXPECT_NE(test::ReadText(merl.string() + ".json").find("variation with phi_h is lost"), std::string::npos);
 }
 
 // The command: exit code 2 and nothing written for bad input; a sidecar.
