@@ -63,8 +63,8 @@ void RegisterConvert(CLI::App& app) {
     side["command"] = "convert";
     side["target"] = formats::WriteFormat(out, f, o);
     side["target"]["path"] = out;
-    if (o.anisotropic && side["target"]["format"] == "merl")
-      std::fprintf(stderr, "brdfkit: note: %s\n", side["target"]["note"].get<std::string>().c_str());
+    if (side["target"].contains("warning"))  // what the target format cannot hold
+      std::fprintf(stderr, "brdfkit: warning: %s\n", side["target"]["warning"].get<std::string>().c_str());
     side["conventions"] = "f_r in 1/sr without the cosine; wi and wo point away from the surface";
     const std::time_t now = std::time(nullptr);
     char date[32];

@@ -105,10 +105,10 @@ bool IsAnisotropic(const BrdfFunction& f) {
   std::mt19937 rng(7);
   std::uniform_real_distribution<double> theta(0.05, 1.4), phi(0.0, 2 * kPi);
   for (int k = 0; k < 64; ++k) {
-    const double ti = theta(rng), pi = phi(rng), to = theta(rng), po = phi(rng);
-    const Rgb<double> a = f(SphericalDirection(ti, pi), SphericalDirection(to, po));
+    const double theta_i = theta(rng), phi_i = phi(rng), theta_o = theta(rng), phi_o = phi(rng);
+    const Rgb<double> a = f(SphericalDirection(theta_i, phi_i), SphericalDirection(theta_o, phi_o));
     for (double turn : {0.9, 2.3}) {
-      const Rgb<double> b = f(SphericalDirection(ti, pi + turn), SphericalDirection(to, po + turn));
+      const Rgb<double> b = f(SphericalDirection(theta_i, phi_i + turn), SphericalDirection(theta_o, phi_o + turn));
       // Relative to the larger value; an absolute 1e-12 for values near 0.
       if (((a - b).abs() > 1e-6 * a.abs().max(b.abs()) + 1e-12).any()) return true;
     }
@@ -124,9 +124,10 @@ nlohmann::json WriteFormat(const std::string& path, const BrdfFunction& f, const
     case Format::kMerl: {
       MerlTable::FromFunction(f).Write(path);
       j["resolution"] = {{"theta_h", 90}, {"theta_d", 90}, {"phi_d", 180}};
-      j["note"] = o.anisotropic ? "the source is anisotropic and MERL isotropic: tabulated at phi_h = 0, the "
-                                  "variation with phi_h is lost"
-                                : "isotropic: tabulated at phi_h = 0";
+      j["note"] = "isotropic: tabulated at phi_h = 0";
+      if (o.anisotropic)
+        j["warning"] = "the source is anisotropic and MERL isotropic: tabulated at phi_h = 0, the variation with "
+                       "phi_h is lost";
       break;
     }
     case Format::kUtia: {

@@ -46,7 +46,8 @@ struct ConvertOptions {
 };
 
 // Tabulates f into `path` (format by its extension), atomically. Returns
-// what the sidecar records about the target: its format and resolution.
+// what the sidecar records about the target: its format and resolution, and
+// a "warning" when the format cannot hold the source (anisotropy in MERL).
 nlohmann::json WriteFormat(const std::string& path, const BrdfFunction& f, const ConvertOptions& options);
 
 }  // namespace brdfkit::formats

@@ -314,7 +314,7 @@ TEST(Formats, BadRglFilesAreNamed) {
   o.samples = o.vndf = 8;
   o.ndf = 16;
   o.sigma = 8;
-  o.theta_i = 16;
+  o.theta_i = 3;
   const TensorFile good = MakeRgl(l.Function(), o);
   const std::vector<unsigned char> bytes = good.Serialise();
   const fs::path p = Scratch("bad.bsdf");

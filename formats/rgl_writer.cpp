@@ -17,18 +17,17 @@ namespace {
 // above 1e-12 of its peak), high enough that the values stay within float.
 constexpr double kNdfFloor = 1e-12;
 // The vndf of a slice, row by row (a row: one azimuth of wm, u_x from the
-// pole to the equator). Every row holds the
-// same mass, and within it a band around the horizon of wo whose density in
-// cos(theta_o) is the same in every row and slice: kBandShare times a
-// Gaussian of cos(theta_o) / kHorizonBand. The rest (the visible normals,
-// a kUniformShare of uniform density for the pole and the rows facing away
-// from wi) fades out within about kTaper of the horizon in cos(theta_o) and
-// is scaled on each side of the horizon so that the row's CDF reaches
-// 1 - kBelowHorizon at the horizon: the horizon then sits at the same
-// square coordinate s_x in every row, the values near it are the same
-// function of s in every row and slice, and their interpolation (bilinear
-// within a slice, linear across slices) follows f cos(theta_o) to the
-// horizon.
+// pole to the equator). Every row holds the same mass, and within it a band
+// around the horizon of wo whose density in cos(theta_o) is the same in
+// every row and slice: kBandShare times a Gaussian of cos(theta_o) /
+// kHorizonBand. The rest (the visible normals, a kUniformShare of uniform
+// density for the pole and the rows facing away from wi) fades out within
+// about kTaper of the horizon in cos(theta_o) and is scaled on each side of
+// the horizon so that the row's CDF reaches 1 - kBelowHorizon at the
+// horizon: the horizon then sits at the same square coordinate s_x in every
+// row, the values near it are the same function of s in every row and
+// slice, and their interpolation (bilinear within a slice, linear across
+// slices) follows f cos(theta_o) to the horizon.
 constexpr double kVndfSpread = 0.2, kLobeShare = 0.35, kUniformShare = 0.5, kBandShare = 0.4, kHorizonBand = 0.2,
                  kTaper = 0.2, kBelowHorizon = 0.4;
 
@@ -48,9 +47,9 @@ Rgb<double> SourceAt(const BrdfFunction& f, const Eigen::Vector3d& wi, const Eig
   return v.max(0.0);
 }
 
-// One row of an isotropic slice's vndf (above): theta_i of the slice, phi
-// the azimuth of wm relative to wi, lobe the row of the visible normals
-// times lobe_scale (a density over the square), n nodes.
+// One row of a slice's vndf (above): theta_i of the slice, phi the azimuth
+// of wm relative to wi's, lobe the row of the visible normals times
+// lobe_scale (a density over the square), n nodes.
 void AlignedRow(double theta_i, double phi, const double* lobe, double lobe_scale, std::size_t n, float* out) {
   const double h = 1.0 / double(n - 1);
   // cos(theta_o) of the reflection of wi about wm = (theta, phi) is
@@ -215,7 +214,8 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
         continue;
       }
       const Eigen::Vector3d wi = slice_wi(a, b);
-      const double sig = sigma_table.Eval(RB::ThetaToU(theta_nodes[b]), RB::PhiToU(iso ? 0.0 : phi_nodes[a]));
+      const double phi_i = iso ? 0.0 : phi_nodes[a];
+      const double sig = sigma_table.Eval(RB::ThetaToU(theta_nodes[b]), RB::PhiToU(phi_i));
       // The visible normals (D + kVndfSpread sigma / pi) <wi, wm>+ times the
       // square's Jacobian u_x sin(theta_m), normalised over the square
       // (trapezoidal rule on the nodes, as the reader normalises).
@@ -229,7 +229,6 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
           mass += q * node_weight(x, vx) * node_weight(y, vy);
         }
       // Rows of anisotropic files are absolute azimuths of wm.
-      const double phi_i = iso ? 0.0 : phi_nodes[a];
       for (std::size_t y = 0; y < vy; ++y)
         AlignedRow(theta_nodes[b], RB::UToPhi(y / double(vy - 1)) - phi_i, lobe.data() + y * vx, 1 / mass, vx, out + y * vx);
     }
