@@ -118,12 +118,12 @@ void RegisterCheck(CLI::App& app) {
       ->check(CLI::Range(2, 50));
   cmd->add_option("--fixed", fixed, "sweep: comma-separated parameters kept at their --params value");
   cmd->add_option("--samples", samples, "samples per direction for the chi-square test (default 100000; sweep: a fifth)")
-      ->check(CLI::Range(std::int64_t(1000), std::int64_t(100000000)));
+      ->check(CLI::Range(validate::CheckOptions::kMinSamples, validate::CheckOptions::kMaxSamples));
   cmd->add_flag("--no-sampling", no_sampling, "skip the sampling tests");
   cmd->add_option("--albedo-budget", albedo_budget,
                   "integrand evaluations per directional albedo of the energy search (default 400000; a measured "
                   "table, whose interpolation the adaptive rule cannot resolve to 1e-8, spends all of it)")
-      ->check(CLI::Range(std::int64_t(1000), std::int64_t(1000000000)));
+      ->check(CLI::Range(validate::CheckOptions::kMinAlbedoBudget, validate::CheckOptions::kMaxAlbedoBudget));
   cmd->callback([] {
     const LoadedModel m = LoadModel(margs);
     const ModelInfo& info = m.model.Info();

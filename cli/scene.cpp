@@ -318,8 +318,9 @@ void CheckTask::Parse(SceneReader& r, const Scene& s) {
                 "'" + m.name + "' is a data table, which has no BRDF to check (fit a model to it first)");
   }
   t.sampling = r.Bool("sampling", true);
-  t.sampling_samples = r.Integer("samples", 100000, 1000, 100000000);
-  t.albedo_budget = r.Integer("albedo_budget", validate::CheckOptions().albedo_budget, 1000, 1000000000);
+  t.sampling_samples = r.Integer("samples", 100000, validate::CheckOptions::kMinSamples, validate::CheckOptions::kMaxSamples);
+  t.albedo_budget = r.Integer("albedo_budget", validate::CheckOptions().albedo_budget, validate::CheckOptions::kMinAlbedoBudget,
+                              validate::CheckOptions::kMaxAlbedoBudget);
 }
 
 void AlbedoTask::Parse(SceneReader& r, const Scene& /*scene*/) {

@@ -57,6 +57,9 @@ struct CheckOptions {
   double significance = 0.01;  // family-wise, for the chi-square tests
   int golden_steps = 12;       // refinement of the albedo maximum in mu
   std::int64_t albedo_budget = 400000;  // evaluations per directional albedo (adaptive)
+  // The ranges the command line, scenes and Python accept.
+  static constexpr std::int64_t kMinSamples = 1000, kMaxSamples = 100000000;
+  static constexpr std::int64_t kMinAlbedoBudget = 1000, kMaxAlbedoBudget = 1000000000;
   int tighten_factor = 16;  // budget factor for albedos whose error bar straddles 1
   int tighten_points = 8;   // at most this many of them, the highest bars first
 };

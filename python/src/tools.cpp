@@ -31,11 +31,14 @@ nlohmann::json FromPython(const py::handle& obj) {
 py::dict Check(const py::object& model, const py::object& params, bool sampling, std::int64_t samples,
                int random_pairs, std::uint64_t seed, std::int64_t albedo_budget, int threads) {
   const ToolModel m = ToolModelArgument(model, params);
-  if (samples < 1000 || samples > 100000000)
-    throw ArgumentError("samples must lie in [1000, 100000000] (got " + std::to_string(samples) + ")");
+  using O = validate::CheckOptions;
+  if (samples < O::kMinSamples || samples > O::kMaxSamples)
+    throw ArgumentError("samples must lie in [" + std::to_string(O::kMinSamples) + ", " + std::to_string(O::kMaxSamples) +
+                        "] (got " + std::to_string(samples) + ")");
   if (random_pairs < 1) throw ArgumentError("random_pairs must be at least 1");
-  if (albedo_budget < 1000 || albedo_budget > 1000000000)
-    throw ArgumentError("albedo_budget must lie in [1000, 1000000000] (got " + std::to_string(albedo_budget) + ")");
+  if (albedo_budget < O::kMinAlbedoBudget || albedo_budget > O::kMaxAlbedoBudget)
+    throw ArgumentError("albedo_budget must lie in [" + std::to_string(O::kMinAlbedoBudget) + ", " +
+                        std::to_string(O::kMaxAlbedoBudget) + "] (got " + std::to_string(albedo_budget) + ")");
   validate::CheckOptions o;
   o.sampling = sampling;
   o.sampling_samples = samples;
