@@ -16,6 +16,7 @@
 #include "brdf/model.h"
 #include "brdf/params.h"
 #include "validate/jet_models.h"
+#include "tests/scratch.h"
 
 namespace brdfkit {
 namespace {
@@ -49,9 +50,7 @@ void ExpectThrowNaming(const std::function<void()>& f, const std::string& path, 
 class MerlFile : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    std::random_device rd;
-    dir_ = new fs::path(fs::temp_directory_path() / ("brdfkit_merl_test_" + std::to_string(rd())));
-    fs::create_directories(*dir_);
+    dir_ = new fs::path(test::FreshDir("merl"));
     model_ = new Model(Model::Parse("lambert+ggx"));
     params_ = new std::vector<double>(
         ParseParams(model_->Info(), "lambert.albedo=0.3:0.4:0.5,ggx.alpha=0.2,ggx.f0=0.9:0.7:0.5"));

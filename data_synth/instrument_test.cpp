@@ -216,7 +216,7 @@ TEST(Outputs, MerlPlanWritesAReadableMerlFileAndAnImage) {
 }
 
 int RunCli(const std::string& args, std::string* err = nullptr) {
-  const std::string log = (fs::temp_directory_path() / ("brdfkit_synth_cli_log_" + std::to_string(::getpid()) + ".txt")).string();
+  const std::string log = test::ScratchPath("synth_cli_log.txt").string();
   const int rc = std::system((std::string(BRDFKIT_EXE) + " " + args + " 2>" + log).c_str());
   if (err) *err = Slurp(log);
   return WEXITSTATUS(rc);

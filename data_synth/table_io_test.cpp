@@ -7,6 +7,7 @@
 #include <fstream>
 #include <random>
 #include <string>
+#include "tests/scratch.h"
 
 namespace brdfkit::synth {
 namespace {
@@ -16,10 +17,7 @@ namespace fs = std::filesystem;
 class TableIoTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    dir_ = fs::temp_directory_path() /
-           ("brdfkit_table_io_" + std::to_string(::testing::UnitTest::GetInstance()->random_seed()) + "_" +
-            ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::create_directories(dir_);
+    dir_ = test::FreshDir(std::string("table_io_") + ::testing::UnitTest::GetInstance()->current_test_info()->name());
   }
   void TearDown() override { fs::remove_all(dir_); }
 

@@ -28,6 +28,7 @@
 #include "data_synth/outputs.h"
 #include "data_synth/synth.h"
 #include "data_synth/table_io.h"
+#include "tests/scratch.h"
 
 namespace brdfkit::fit {
 namespace {
@@ -382,7 +383,7 @@ TEST(Fit, MerlFileFitsBackTheMaterialThatWroteIt) {
   const auto b = m.Make<double>();
   const MerlTable table = MerlTable::FromFunction(
       [&](const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) { return b->Eval(truth.data(), wi, wo); });
-  const fs::path path = fs::temp_directory_path() / ("brdfkit_fit_merl_" + std::to_string(::getpid()) + ".binary");
+  const fs::path path = test::ScratchPath("fit_merl.binary");
   table.Write(path.string());
   Dataset d = LoadDataset(path.string());
   fs::remove(path);
@@ -573,7 +574,7 @@ TEST(Fit, OptimumOnABoundMeetsTheOptimalityConditions) {
 }
 
 TEST(Fit, LoadDatasetReadsCsvWithMissingSamples) {
-  const fs::path path = fs::temp_directory_path() / ("brdfkit_fit_csv_" + std::to_string(::getpid()) + ".csv");
+  const fs::path path = test::ScratchPath("fit_csv.csv");
   {
     std::ofstream f(path);
     f << "theta_i,phi_i,theta_o,phi_o,f\n0.5,0,0.5,3.14159,0.3\n0.5,0,,3.14159,0.3\n0.2,1,0.3,2,nan\n";
@@ -594,8 +595,7 @@ TEST(Fit, CliFitsWritesJsonAndReusesTheFit) {
   for (const Sample& s : d.samples)
     t.rows.push_back({std::acos(s.wi.z()), std::atan2(s.wi.y(), s.wi.x()), std::acos(s.wo.z()),
                       std::atan2(s.wo.y(), s.wo.x()), s.f, Eigen::Array3d::Zero()});
-  const fs::path dir = fs::temp_directory_path() / ("brdfkit_fit_cli_" + std::to_string(::getpid()));
-  fs::create_directories(dir);
+  const fs::path dir = test::FreshDir("fit_cli");
   const std::string csv = (dir / "t.csv").string(), out = (dir / "fit.json").string(),
                     trace = (dir / "trace.csv").string(), svg = (dir / "trace.svg").string();
   synth::WriteTableCsv(csv, t);

@@ -23,11 +23,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-fs::path Scratch(const std::string& name) {
-  const fs::path d = fs::temp_directory_path() / "brdfkit_formats_test";
-  fs::create_directories(d);
-  return d / name;
-}
+fs::path Scratch(const std::string& name) { return test::ScratchPath(name); }
 
 Eigen::Vector3d Dir(double theta, double phi) { return SphericalDirection(theta, phi); }
 

@@ -56,10 +56,7 @@ void Write(const fs::path& p, const std::string& text) {
 class BadInput : public ::testing::Test {
  protected:
   void SetUp() override {
-    dir_ = fs::temp_directory_path() / ("brdfkit_bad_input_" + std::to_string(::getpid()) + "_" +
-                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
+    dir_ = test::FreshDir(std::string("bad_input_") + ::testing::UnitTest::GetInstance()->current_test_info()->name());
     good_ = dir_ / "good.csv";
     Write(good_, kGood);
   }

@@ -11,6 +11,8 @@
 #include <sstream>
 #include <string>
 
+#include "tests/scratch.h"
+
 namespace brdfkit::test {
 
 struct CliRun {
@@ -46,14 +48,6 @@ inline std::string ReadText(const std::filesystem::path& p) {
 inline void WriteText(const std::filesystem::path& p, const std::string& text) {
   std::ofstream out(p, std::ios::binary);
   out << text;
-}
-
-// A fresh empty folder under the system temporary folder.
-inline std::filesystem::path FreshDir(const std::string& name) {
-  const auto d = std::filesystem::temp_directory_path() / ("brdfkit-test-" + name + "-" + std::to_string(::getpid()));
-  std::filesystem::remove_all(d);
-  std::filesystem::create_directories(d);
-  return d;
 }
 
 }  // namespace brdfkit::test

@@ -9,12 +9,13 @@
 #include "brdf/merl.h"
 #include "brdf/model.h"
 #include "brdf/params.h"
+#include "tests/scratch.h"
 
 namespace brdfkit::test {
 
 inline std::string KnownMerlFile() {
   static const std::string path = [] {
-    const auto file = std::filesystem::temp_directory_path() / "brdfkit_properties_test.binary";
+    const auto file = ScratchPath("known_lambert_ggx.binary");
     const Model m = Model::Parse("lambert+ggx");
     const auto b = m.Make<double>();
     const std::vector<double> p = ParseParams(m.Info(), "lambert.albedo=0.3:0.4:0.5,ggx.alpha=0.4,ggx.f0=0.5");

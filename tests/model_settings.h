@@ -16,6 +16,7 @@
 #endif
 #if __has_include("formats/convert.h")
 #include "formats/convert.h"
+#include "tests/scratch.h"
 #define BRDFKIT_HAVE_FORMATS 1
 #endif
 
@@ -32,7 +33,7 @@ inline Settings SettingsFor(const ModelInfo& info) {
   static const char* kFormats[][2] = {{"rgl", ".bsdf"}, {"utia", ".utia"}, {"astm", ".astm"}};
   for (const auto& [name, ext] : kFormats) {
     if (info.name != name) continue;
-    const auto file = std::filesystem::temp_directory_path() / (std::string("brdfkit_properties_test") + ext);
+    const auto file = ScratchPath(std::string("known_lambert_ggx") + ext);
     static std::map<std::string, bool> written;
     if (!written[name]) {
       const Model m = Model::Parse("lambert+ggx");

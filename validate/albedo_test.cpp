@@ -19,6 +19,7 @@
 #include "brdf/params.h"
 #include "brdf/quadrature.h"
 #include "tests/test_util.h"
+#include "tests/scratch.h"
 
 namespace brdfkit::validate {
 namespace {
@@ -37,10 +38,7 @@ AlbedoTable Table(const std::string& model, const std::string& params, const std
 }
 
 std::filesystem::path TempDir(const std::string& name) {
-  auto d = std::filesystem::temp_directory_path() / ("brdfkit_albedo_" + name);
-  std::filesystem::remove_all(d);
-  std::filesystem::create_directories(d);
-  return d;
+  return test::FreshDir("albedo_" + name);
 }
 
 // Brute-force reference in a different parameterisation: wi in (cos theta_i,

@@ -17,6 +17,7 @@
 #include "validate/plot.h"
 #include "validate/references.h"
 #include "validate/sobol.h"
+#include "tests/scratch.h"
 
 namespace brdfkit::validate {
 namespace {
@@ -424,8 +425,7 @@ TEST(Adaptive, FewThousandEvaluationsPerTableCellAt1e7) {
 
 TEST(Plot, WritesSvgFilesAtomically) {
   namespace fs = std::filesystem;
-  const fs::path dir = fs::temp_directory_path() / ("brdfkit_plot_" + std::to_string(::getpid()));
-  fs::create_directories(dir);
+  const fs::path dir = test::FreshDir("plot");
   Series a{"a", {1e-3, 1e-2, 1e-1}, {1e-2, 1e-4, 1e-8}}, b{"b", {1e-3, 1e-1}, {0.5, 0.0}};
   LinePlot((dir / "line.svg").string(), "errors", "time", "error", {a, b}, true, true);
   HeatMap((dir / "heat.svg").string(), "table", "mu", "alpha", {0, 0.5, 1}, {0, 0.1, 0.4, 1},
@@ -458,7 +458,7 @@ TEST(Plot, WritesSvgFilesAtomically) {
 
 TEST(ConvergenceCommand, QuickRunWritesCsvPlotAndSummary) {
   namespace fs = std::filesystem;
-  const fs::path dir = fs::temp_directory_path() / ("brdfkit_conv_" + std::to_string(::getpid()));
+  const fs::path dir = test::ScratchPath("conv");
   const std::string cmd = std::string(BRDFKIT_EXE) + " convergence --quick --methods importance,adaptive --out " +
                           dir.string() + " > " + (dir.string() + ".log") + " 2>&1";
   ASSERT_EQ(std::system(cmd.c_str()), 0);

@@ -12,6 +12,7 @@
 #include "brdf/model.h"
 #include "validate/albedo.h"
 #include "tests/test_util.h"
+#include "tests/scratch.h"
 
 namespace brdfkit::validate {
 namespace {
@@ -198,8 +199,7 @@ TEST(FilamentPreset, IncFileIsCmgensLayoutOfHalfFloats) {
   PresetOptions o;
   o.size = 8;
   const Preset p = BuildPreset("filament", o);
-  const std::filesystem::path dir = std::filesystem::temp_directory_path() / "brdfkit_presets_test";
-  std::filesystem::create_directories(dir);
+  const std::filesystem::path dir = test::FreshDir("presets");
   const std::string path = (dir / "dfg.inc").string();
   WritePresetHeader(p, path);
   std::ifstream in(path);

@@ -11,16 +11,13 @@
 #include <fstream>
 #include <string>
 
+#include "tests/scratch.h"
+
 namespace brdfkit::fuzz {
 
 // A per-process scratch file under the temporary folder.
 inline std::string ScratchPath(const char* name) {
-  static const std::filesystem::path dir = [] {
-    std::filesystem::path d = std::filesystem::temp_directory_path() / ("brdfkit_fuzz_" + std::to_string(::getpid()));
-    std::filesystem::create_directories(d);
-    return d;
-  }();
-  return (dir / name).string();
+  return test::ScratchPath(name).string();
 }
 
 inline void WriteBytes(const std::string& path, const std::uint8_t* data, std::size_t size) {
