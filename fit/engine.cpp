@@ -138,8 +138,9 @@ template <class T>
 void Engine::ResidualsOf(const Rgb<T>& f, const Prepared& d, std::size_t q, double cos_i, bool fit, T* out) const {
   for (int c = 0; c < 3; ++c) {
     const T g = MetricTransform(metric_, f[c], cos_i);
-    if (fit) out[c] = Robust(loss_, loss_scale_, T(T(d.w_fit[q][c]) * (g - T(d.target[q][c]))));
-    else out[c] = T(d.WMetric(q)[c]) * (g - T(d.target[q][c]));
+    const T r = g - T(d.target[q][c]);
+    if (fit) out[c] = Robust(loss_, loss_scale_, d.w_fit.empty() ? r : T(T(d.w_fit[q][c]) * r));
+    else out[c] = d.w_fit.empty() && d.w_metric.empty() ? r : T(T(d.WMetric(q)[c]) * r);
   }
 }
 

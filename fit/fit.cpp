@@ -145,8 +145,8 @@ Result FitInArena(const Evaluators& model, const Dataset& data, const Options& o
   res.metric = o.metric;
   res.missing = data.missing;
   res.packed_names = PackedNames(info);
-  const Selection sel = SelectSamples(data, o, info.PackedSize(), res);
-  const Prepared full = Prepare(data, sel.index, o);
+  Selection sel = SelectSamples(data, o, info.PackedSize(), res);
+  const Prepared full = Prepare(data, std::move(sel.index), o);
   const Layout layout = MakeLayout(info, o);
   // Engine without a robust loss for the start search; its scale is chosen below.
   const Engine plain(model, WithoutLoss(o), 1.0, layout);

@@ -269,7 +269,9 @@ TEST(Fit, RelativeErrorsChiSquareAndModelMismatch) {
     Eigen::Array3d mean = Eigen::Array3d::Zero();
     for (const Sample& x : d.samples) mean += x.f.abs();
     mean /= double(d.samples.size());
+    constexpr std::size_t kBands = std::size(kThetaHBandEdgesDeg) - 1;
     std::vector<double> rel, low_band;
+    std::vector<std::vector<double>> bands(kBands);
     for (const Sample& x : d.samples) {
       const Eigen::Array3d f = b->Eval(r.params.data(), x.wi, x.wo);
       const double th = std::acos((x.wi + x.wo).normalized().z()) * 180 / kPi;
@@ -277,10 +279,13 @@ TEST(Fit, RelativeErrorsChiSquareAndModelMismatch) {
         const double e = std::abs(f[c] - x.f[c]) / std::max(std::abs(x.f[c]), 1e-3 * mean[c]);
         rel.push_back(e);
         if (th < 2) low_band.push_back(e);
+        for (std::size_t k = 0; k < kBands; ++k)
+          if (th >= kThetaHBandEdgesDeg[k] && (th < kThetaHBandEdgesDeg[k + 1] || k + 1 == kBands)) bands[k].push_back(e);
       }
     }
     std::sort(rel.begin(), rel.end());
     std::sort(low_band.begin(), low_band.end());
+    for (auto& v : bands) std::sort(v.begin(), v.end());
     const auto quantile = [](const std::vector<double>& v, double q) {
       const double pos = q * double(v.size() - 1);
       const std::size_t i = std::size_t(pos);
@@ -297,6 +302,19 @@ TEST(Fit, RelativeErrorsChiSquareAndModelMismatch) {
     std::size_t band_total = 0;
     for (const BandStats& band : r.relative_error_bands) band_total += band.stats.count;
     EXPECT_EQ(band_total, rel.size());
+    // Every band's statistics, the small ones included.
+    std::size_t listed = 0;
+    for (std::size_t k = 0; k < kBands; ++k) {
+      if (bands[k].empty()) continue;
+      ASSERT_LT(listed, r.relative_error_bands.size());
+      const BandStats& band = r.relative_error_bands[listed++];
+      EXPECT_EQ(band.theta_h_min_deg, kThetaHBandEdgesDeg[k]);
+      EXPECT_EQ(band.stats.count, bands[k].size());
+      EXPECT_NEAR(band.stats.median, quantile(bands[k], 0.5), 1e-12);
+      EXPECT_NEAR(band.stats.p95, quantile(bands[k], 0.95), 1e-12);
+      EXPECT_NEAR(band.stats.max, bands[k].back(), 1e-12);
+    }
+    EXPECT_EQ(listed, r.relative_error_bands.size());
     // One lobe cannot follow two: errors well above the 1 % noise.
     EXPECT_GT(r.relative_error.p95, 0.05);
     if (with_sigma) {

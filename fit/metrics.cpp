@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cmath>
 #include <iterator>
+#include <span>
 #include <stdexcept>
 
 #include "fit/fit_internal.h"
@@ -95,23 +96,25 @@ Selection Select(const Dataset& data, const Options& o) {
   return s;
 }
 
-Prepared Prepare(const Dataset& data, const std::vector<std::size_t>& index, const Options& o) {
+Prepared Prepare(const Dataset& data, std::vector<std::size_t> index, const Options& o) {
   Prepared p;
   const std::size_t n = index.size();
   const bool sigma = data.has_sigma && o.use_sigma;
+  const bool unit_weights = !sigma && o.metric != Metric::kRelative && o.metric != Metric::kCosine;
   p.data = &data;
-  ReserveHuge(p.index, index.size());
-  p.index = index;
+  p.index = std::move(index);
   // Unit to a few ulp (a direction from angles is): read as they are.
   const auto unit = [](const Eigen::Vector3d& w) { return std::abs(w.squaredNorm() - 1) <= 1e-14; };
-  p.unit = std::all_of(index.begin(), index.end(),
+  p.unit = std::all_of(p.index.begin(), p.index.end(),
                        [&](std::size_t k) { return unit(data.samples[k].wi) && unit(data.samples[k].wo); });
   p.consecutive = true;
-  for (std::size_t q = 1; q < n && p.consecutive; ++q) p.consecutive = index[q] == index[0] + q;
+  for (std::size_t q = 1; q < n && p.consecutive; ++q) p.consecutive = p.index[q] == p.index[0] + q;
   ReserveHuge(p.target, n);
-  ReserveHuge(p.w_fit, n);
   p.target.resize(n);
-  p.w_fit.resize(n);
+  if (!unit_weights) {
+    ReserveHuge(p.w_fit, n);
+    p.w_fit.resize(n);
+  }
   if (sigma) {
     ReserveHuge(p.w_metric, n);
     p.w_metric.resize(n);
@@ -121,13 +124,13 @@ Prepared Prepare(const Dataset& data, const std::vector<std::size_t>& index, con
   Eigen::Array3d floor = Eigen::Array3d::Zero();
   if (o.metric == Metric::kRelative) {
     Eigen::Array3d mean = Eigen::Array3d::Zero();
-    for (std::size_t k : index) mean += data.samples[k].f.abs();
+    for (std::size_t k : p.index) mean += data.samples[k].f.abs();
     mean /= std::max<std::size_t>(n, 1);
     floor = (1e-3 * mean).max(1e-300);
   }
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 4096), [&](const tbb::blocked_range<std::size_t>& r) {
     for (std::size_t q = r.begin(); q < r.end(); ++q) {
-      const Sample& s = data.samples[index[q]];
+      const Sample& s = data.samples[p.index[q]];
       const double c = p.Wi(q).z();
       for (int ch = 0; ch < 3; ++ch) {
         const double g = s.f[ch];
@@ -137,7 +140,7 @@ Prepared Prepare(const Dataset& data, const std::vector<std::size_t>& index, con
         if (o.metric == Metric::kCosine) w = c;
         if (sigma) p.w_metric[q][ch] = w;
         // Standard deviation of the metric residual, to first order in sigma.
-        p.w_fit[q][ch] = sigma ? 1.0 / (std::abs(MetricSlope(o.metric, g, c)) * s.sigma[ch]) : w;
+        if (!unit_weights) p.w_fit[q][ch] = sigma ? 1.0 / (std::abs(MetricSlope(o.metric, g, c)) * s.sigma[ch]) : w;
       }
     }
   });
@@ -154,13 +157,13 @@ Prepared Rows(const Prepared& p, const std::vector<std::size_t>& rows) {
   out.consecutive = true;  // its own rows, in order
   out.index.reserve(rows.size());
   out.target.reserve(rows.size());
-  out.w_fit.reserve(rows.size());
+  if (!p.w_fit.empty()) out.w_fit.reserve(rows.size());
   if (!p.w_metric.empty()) out.w_metric.reserve(rows.size());
   for (std::size_t q : rows) {
     out.index.push_back(own->samples.size());
     own->samples.push_back(p.Row(q));
     out.target.push_back(p.target[q]);
-    out.w_fit.push_back(p.w_fit[q]);
+    if (!p.w_fit.empty()) out.w_fit.push_back(p.w_fit[q]);
     if (!p.w_metric.empty()) out.w_metric.push_back(p.w_metric[q]);
   }
   out.data = own.get();
@@ -207,24 +210,28 @@ double Rmse(const Engine& e, const Prepared& d, const std::vector<double>& u) {
 namespace {
 
 // Quantile q, linear between order statistics (position q (n - 1), the
-// usual sample quantile), found by selection in linear time; v is reordered.
-double Quantile(std::vector<double>& v, double q) {
+// usual sample quantile), found by selection in linear time; v is
+// reordered. `from`, at most that position, says that every element before
+// it is at most every element from it on (a lower quantile's selection), so
+// the selection runs in the part above it only.
+double Quantile(std::span<double> v, double q, std::size_t from = 0) {
   const double pos = q * double(v.size() - 1);
   const std::size_t i = static_cast<std::size_t>(pos);
   const auto at = v.begin() + static_cast<std::ptrdiff_t>(i);
-  std::nth_element(v.begin(), at, v.end());
+  std::nth_element(v.begin() + static_cast<std::ptrdiff_t>(from), at, v.end());
   if (i + 1 >= v.size()) return *at;
   const double next = *std::min_element(at + 1, v.end());
   return *at + (pos - double(i)) * (next - *at);
 }
 
-ErrorStats StatsOf(std::vector<double> v) {
+// The statistics of v (reordered).
+ErrorStats StatsOf(std::span<double> v) {
   ErrorStats s;
   s.count = v.size();
   if (v.empty()) return s;
   s.max = *std::max_element(v.begin(), v.end());
   s.median = Quantile(v, 0.5);
-  s.p95 = Quantile(v, 0.95);
+  s.p95 = Quantile(v, 0.95, static_cast<std::size_t>(0.5 * double(v.size() - 1)));
   return s;
 }
 
@@ -272,9 +279,9 @@ void RelativeErrors(const Engine& e, const Prepared& d, const std::vector<double
     for (std::size_t q = 0; q < n; ++q)
       if (band[q] == b) in.insert(in.end(), all.begin() + std::ptrdiff_t(3 * q), all.begin() + std::ptrdiff_t(3 * q + 3));
     if (!in.empty())
-      res.relative_error_bands.push_back({kThetaHBandEdgesDeg[b], kThetaHBandEdgesDeg[b + 1], StatsOf(std::move(in))});
+      res.relative_error_bands.push_back({kThetaHBandEdgesDeg[b], kThetaHBandEdgesDeg[b + 1], StatsOf(in)});
   }
-  res.relative_error = StatsOf(std::move(all));
+  res.relative_error = StatsOf(all);
 }
 
 double LossScale(const FitState& s, const std::vector<double>& u) {
@@ -301,8 +308,8 @@ double LossScale(const FitState& s, const std::vector<double>& u) {
 
 double MetricRmse(const Model& model, const std::vector<double>& params, const Dataset& data,
                   const Options& options) {
-  const Selection sel = Select(data, options);
-  const Prepared d = Prepare(data, sel.index, options);
+  Selection sel = Select(data, options);
+  const Prepared d = Prepare(data, std::move(sel.index), options);
   const Engine e(ModelEvaluators(model), options, 1.0, AllFree(model.Info()));
   tbb::task_arena arena(std::clamp(options.num_threads, 1, std::max(1, tbb::info::default_concurrency())));
   return arena.execute([&] { return Rmse(e, d, e.ToInternal(params)); });
