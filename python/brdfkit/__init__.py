@@ -18,7 +18,9 @@ Long calls (check, albedo_table, synth, fit, Model.albedo) release the
 GIL, stop with KeyboardInterrupt on Ctrl-C and take ``threads``.
 """
 
+import json as _json
 import os as _os
+import warnings as _warnings
 
 from ._brdfkit import Model, PythonModel, Tabulated, models
 from . import _brdfkit
@@ -313,13 +315,16 @@ def stress(models=(), *, merl=None, sweep_only=False):
 
 
 class Format:
-    """A measured-data file format: name, file suffixes, reader and writer."""
+    """A measured-data file format: name, file suffixes, reader and writer
+    of arrays (None: written from a model only, see write); named: files
+    of the format must carry one of its suffixes (its reader goes by it)."""
 
-    def __init__(self, name, suffixes, reader, writer):
+    def __init__(self, name, suffixes, reader, writer, named=False):
         self.name = name
         self.suffixes = tuple(suffixes)
         self.reader = reader
         self.writer = writer
+        self.named = named
 
     def __repr__(self):
         return f"brdfkit.Format({self.name!r}, {self.suffixes!r})"
@@ -329,14 +334,24 @@ class Format:
 FORMATS = {
     "merl": Format("merl", (".binary",), _brdfkit._read_merl, _brdfkit._write_merl),
     "csv": Format("csv", (".csv",), _brdfkit._read_csv, _brdfkit._write_csv),
+    "rgl": Format("rgl", (".bsdf",), _brdfkit._read_samples, None, named=True),
+    "utia": Format("utia", (".utia", ".bin"), _brdfkit._read_samples, None, named=True),
+    "astm": Format("astm", (".astm",), _brdfkit._read_samples, None, named=True),
 }
 
 
-def _format(path, format):
+def _format(path, format, by_suffix=False):
+    """The Format of path: format if given, else by suffix. The suffix must
+    be the format's where the format is named, or by_suffix (a model's
+    target, whose format the suffix decides)."""
     if format is not None:
         if format not in FORMATS:
             raise ValueError(f"unknown format '{format}' (known formats: {', '.join(FORMATS)})")
-        return FORMATS[format]
+        fmt = FORMATS[format]
+        suffix = _os.path.splitext(_os.fspath(path))[1].lower()
+        if (by_suffix or fmt.named) and suffix not in fmt.suffixes:
+            raise ValueError(f"'{_os.fspath(path)}': {format} files are named *{' or *'.join(fmt.suffixes)}")
+        return fmt
     suffix = _os.path.splitext(_os.fspath(path))[1].lower()
     for fmt in FORMATS.values():
         if suffix in fmt.suffixes:
@@ -346,36 +361,81 @@ def _format(path, format):
 
 
 def read(path, format=None):
-    """Reads measured data.
+    """Reads measured data: the samples at the file's own nodes, as
+    ``brdfkit fit --data`` reads them.
 
     Parameters
     ----------
     path : str or os.PathLike
     format : str, optional
-        A key of FORMATS; default from the suffix (.binary MERL, .csv table).
+        A key of FORMATS; default from the suffix (.binary MERL, .csv table,
+        .bsdf RGL, .utia or .bin UTIA, .astm ASTM E1392). RGL, UTIA and
+        ASTM files must carry their suffix, and their header must agree.
 
     Returns
     -------
     dict
-        format, wi, wo, f (N, 3) of the valid samples, sigma (N, 3) or None,
-        missing (samples skipped), and for MERL values (3, 90, 90, 180).
+        format, wi, wo, f (N, 3) of the valid samples (f_r in 1/sr; for RGL
+        the stored f_r cos(theta_o) divided by the cosine), sigma (N, 3) or
+        None, missing (samples skipped), and for MERL values (3, 90, 90, 180).
     """
     fmt = _format(path, format)
     return fmt.reader(_existing(path, "file"))
 
 
-def write(path, data, format=None):
+def write(path, data, format=None, *, rgl=None, step_deg=5.0, phi_i=None, anisotropic=False, threads=0):
     """Writes measured data atomically (a complete file or none).
 
     Parameters
     ----------
     path : str or os.PathLike
-    data : dict or Model
-        CSV: a dict with wi, wo, f (N, 3) and optional sigma. MERL: a dict
-        with values (3, 90, 90, 180), or a Model (tabulated at the bin
-        centres).
+    data : dict, Model, PythonModel or Tabulated
+        A model (any of the three) is tabulated at the target format's own
+        nodes, as ``brdfkit convert --model`` does: MERL bin centres, an RGL
+        file fitted to the model, UTIA's 6 x 48 x 6 x 48 grid, or an ASTM /
+        CSV grid of step_deg. Arrays: CSV, a dict with wi, wo, f (N, 3) and
+        optional sigma; MERL, a dict with values (3, 90, 90, 180).
     format : str, optional
-        A key of FORMATS; default from the suffix.
+        A key of FORMATS; default from the suffix. A model is written in
+        the format of the suffix, which must agree with format.
+    rgl : dict, optional
+        RGL resolutions, the convert command's --rgl-* options: theta_i,
+        phi_i (0 isotropic; default 0, or 24 for an anisotropic model),
+        ndf, sigma, vndf, vndf_theta, samples.
+    step_deg : float
+        ASTM and CSV grid step in degrees (0.5 to 45).
+    phi_i : int, optional
+        ASTM and CSV incident azimuths (default 1, or 8 for an anisotropic
+        model).
+    anisotropic : bool
+        Treat the model as anisotropic even where it does not vary as the
+        surface turns.
+    threads : int
+        Worker threads (0: all cores).
+
+    Returns
+    -------
+    dict or None
+        For a model: what ``convert``'s sidecar says (source: model,
+        params, anisotropic; target: format, resolution, path, for RGL the
+        reconstruction error, and a warning where the format cannot hold the
+        model, which is also issued as a UserWarning). None for arrays.
     """
+    if isinstance(data, (Model, PythonModel, Tabulated)):
+        _format(path, format, by_suffix=True)
+        if rgl is not None and not isinstance(rgl, dict):
+            raise TypeError(f"rgl must be a dict of resolutions (got {type(rgl).__name__})")
+        if phi_i is not None and (not isinstance(phi_i, int) or phi_i < 1):
+            raise ValueError(f"phi_i must be a positive int, got {phi_i!r}")
+        described = _json.loads(_brdfkit._write_model(
+            _os.fspath(path), data, None, dict(rgl or {}), float(step_deg), -1 if phi_i is None else phi_i,
+            bool(anisotropic), threads))
+        if "warning" in described["target"]:
+            _warnings.warn(f"{_os.fspath(path)}: {described['target']['warning']}", UserWarning, stacklevel=2)
+        return described
     fmt = _format(path, format)
+    if fmt.writer is None:
+        raise TypeError(f"{fmt.name} files are written from a model (a Model, PythonModel or Tabulated), "
+                        f"tabulated at the format's own nodes; got {type(data).__name__}")
     fmt.writer(_os.fspath(path), data)
+    return None

@@ -108,14 +108,18 @@ class Format:
     name: str
     suffixes: tuple[str, ...]
     reader: Callable[[str], dict[str, Any]]
-    writer: Callable[[str, Any], None]
+    writer: Optional[Callable[[str, Any], None]]
+    named: bool
     def __init__(self, name: str, suffixes: Sequence[str], reader: Callable[[str], dict[str, Any]],
-                 writer: Callable[[str, Any], None]) -> None: ...
+                 writer: Optional[Callable[[str, Any], None]], named: bool = False) -> None: ...
 
 FORMATS: dict[str, Format]
 
 def read(path: PathArg, format: Union[None, str] = None) -> dict[str, Any]:
-    """Measured data: format, wi, wo, f, sigma, missing (MERL: values too)."""
+    """Measured data at the file's nodes: format, wi, wo, f, sigma, missing (MERL: values too)."""
 
-def write(path: PathArg, data: Union[dict[str, Any], Model], format: Union[None, str] = None) -> None:
-    """Writes measured data atomically (CSV: dict of arrays; MERL: values or a Model)."""
+def write(path: PathArg, data: Union[dict[str, Any], Model, PythonModel, Tabulated], format: Union[None, str] = None, *,
+          rgl: Optional[dict[str, int]] = None, step_deg: float = 5.0, phi_i: Optional[int] = None,
+          anisotropic: bool = False, threads: int = 0) -> Optional[dict[str, Any]]:
+    """Writes measured data atomically: a model tabulated in any format (returns what convert's
+    sidecar says), or arrays as CSV samples or MERL values."""

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <map>
 
 #include "brdf/merl.h"
 #include "brdf/params.h"
@@ -13,6 +14,7 @@
 #include "data_synth/table_io.h"
 #include "fit/fit.h"
 #include "fit/jet_models.h"
+#include "formats/convert.h"
 #include "python/src/callable.h"
 #include "python/src/common.h"
 #include "validate/albedo.h"
@@ -350,29 +352,67 @@ py::dict ReadMerl(const std::string& path) {
 
 void WriteMerl(const std::string& path, const py::object& data) {
   MerlTable t;
-  if (py::isinstance<PyModel>(data)) {
-    // f_r of the model at every bin centre.
-    const PyModel m = data.cast<PyModel>();
-    for (int i = 0; i < MerlTable::kThetaH; ++i)
-      for (int j = 0; j < MerlTable::kThetaD; ++j)
-        for (int k = 0; k < MerlTable::kPhiD; ++k) {
-          Eigen::Vector3d wi, wo;
-          MerlTable::BinDirections(i, j, k, wi, wo);
-          const Rgb<double> f = m.bxdf->Eval(m.params.data(), wi, wo);
-          for (int c = 0; c < 3; ++c) t.values[c * MerlTable::kCells + MerlTable::Index(i, j, k)] = f[c];
-        }
-  } else {
-    const py::object v = py::isinstance<py::dict>(data) ? py::object(data.cast<py::dict>()["values"]) : data;
-    auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(v);
-    if (!a || a.size() != static_cast<py::ssize_t>(3 * MerlTable::kCells))
-      throw ArgumentError("MERL data: give a Model, or values of shape (3, 90, 90, 180) (f_r in 1/sr, -1 missing)");
-    for (py::ssize_t k = 0; k < a.size(); ++k) {
-      if (!std::isfinite(a.data()[k]))
-        throw ArgumentError("MERL values: entry " + std::to_string(k) + " is not finite");
-      t.values[k] = a.data()[k];
-    }
+  const py::object v = py::isinstance<py::dict>(data) ? py::object(data.cast<py::dict>()["values"]) : data;
+  auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(v);
+  if (!a || a.size() != static_cast<py::ssize_t>(3 * MerlTable::kCells))
+    throw ArgumentError("MERL data: give a Model, or values of shape (3, 90, 90, 180) (f_r in 1/sr, -1 missing)");
+  for (py::ssize_t k = 0; k < a.size(); ++k) {
+    if (!std::isfinite(a.data()[k]))
+      throw ArgumentError("MERL values: entry " + std::to_string(k) + " is not finite");
+    t.values[k] = a.data()[k];
   }
   t.Write(path);
+}
+
+// The samples of a measured file at its own nodes, as `fit --data` reads
+// them (the cosine of RGL's stored product divided out), and its format.
+py::dict ReadSamples(const std::string& path) {
+  const formats::Format format = formats::DetectFormat(path);
+  py::dict d = DatasetDict(fit::LoadDataset(path));
+  d["format"] = formats::FormatName(format);
+  return d;
+}
+
+// A model tabulated into a measured-data file of the format the path's
+// extension names, as `brdfkit convert --model` does: what the sidecar of
+// that command holds (source and target), as JSON text.
+std::string WriteModel(const std::string& path, const py::object& model, const py::object& params,
+                       const std::map<std::string, int>& rgl, double step_deg, int phi_i, bool anisotropic,
+                       int threads) {
+  (void)formats::FormatOfName(path);  // a bad target name fails before the work
+  formats::ConvertOptions o;
+  const std::map<std::string, int formats::RglOptions::*> fields = {
+      {"theta_i", &formats::RglOptions::theta_i}, {"phi_i", &formats::RglOptions::phi_i},
+      {"ndf", &formats::RglOptions::ndf},         {"sigma", &formats::RglOptions::sigma},
+      {"vndf", &formats::RglOptions::vndf},       {"vndf_theta", &formats::RglOptions::vndf_theta},
+      {"samples", &formats::RglOptions::samples}};
+  o.rgl.phi_i = -1;
+  for (const auto& [name, value] : rgl) {
+    const auto it = fields.find(name);
+    if (it == fields.end())
+      throw ArgumentError("rgl: unknown resolution '" + name +
+                          "' (known: theta_i, phi_i, ndf, sigma, vndf, vndf_theta, samples)");
+    o.rgl.*(it->second) = value;
+  }
+  if (!(step_deg >= 0.5 && step_deg <= 45))
+    throw ArgumentError("step_deg must be 0.5 to 45 degrees, got " + FormatDouble(step_deg));
+  o.step_deg = step_deg;
+  o.phi_i = phi_i;
+  const ToolModel m = ToolModelArgument(model, params);
+  nlohmann::json side;
+  RunTool(m, threads, [&](const CancelToken&) {
+    const formats::BrdfFunction f = [&m](const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) {
+      return m.bxdf->Eval(m.params.data(), wi, wo);
+    };
+    const bool source_anisotropic = formats::IsAnisotropic(f);
+    o.anisotropic = anisotropic || source_anisotropic;
+    side["source"] = {{"model", m.spec},
+                      {"params", FormatParams(m.bxdf->Info(), m.params)},
+                      {"anisotropic", source_anisotropic}};
+    side["target"] = formats::WriteFormat(path, f, o);
+    side["target"]["path"] = path;
+  });
+  return side.dump();
 }
 
 py::dict ReadCsv(const std::string& path) {
@@ -421,6 +461,9 @@ void BindTools(py::module_& m) {
   m.def("_read_merl", &ReadMerl, py::arg("path"));
   m.def("_write_merl", &WriteMerl, py::arg("path"), py::arg("data"));
   m.def("_read_csv", &ReadCsv, py::arg("path"));
+  m.def("_read_samples", &ReadSamples, py::arg("path"));
+  m.def("_write_model", &WriteModel, py::arg("path"), py::arg("model"), py::arg("params"), py::arg("rgl"),
+        py::arg("step_deg"), py::arg("phi_i"), py::arg("anisotropic"), py::arg("threads"));
   m.def("_write_csv", &WriteCsv, py::arg("path"), py::arg("data"));
 }
 
