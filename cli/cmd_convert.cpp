@@ -32,7 +32,6 @@ void RegisterConvert(CLI::App& app) {
   cmd->add_option("--phi-i", o.phi_i, "ASTM / CSV: incident azimuths (default 1, or 8 for anisotropic sources)");
   cmd->add_flag("--anisotropic", o.anisotropic, "treat the source as anisotropic (implied for UTIA files, anisotropic tables and models)");
   cmd->add_flag("--no-sidecar", no_sidecar, "do not write OUT.json");
-  o.rgl.phi_i = -1;
   cmd->callback([] {
     nlohmann::json side;
     formats::BrdfFunction f;
@@ -44,11 +43,7 @@ void RegisterConvert(CLI::App& app) {
       auto m = std::make_shared<LoadedModel>(LoadModel(margs));
       auto b = std::shared_ptr<const Bxdf<double>>(m->model.Make<double>().release());
       f = [m, b](const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) { return b->Eval(m->params.data(), wi, wo); };
-      const bool anisotropic = formats::IsAnisotropic(f);
-      o.anisotropic = o.anisotropic || anisotropic;
-      side["source"] = {{"model", m->model.Spec()},
-                        {"params", FormatParams(m->model.Info(), m->params)},
-                        {"anisotropic", anisotropic}};
+      side["source"] = formats::ModelSource(f, m->model.Spec(), FormatParams(m->model.Info(), m->params), o);
     } else {
       if (files.size() != 2) throw UsageError("convert: give IN OUT (or --model SPEC OUT)");
       out = files[1];
@@ -62,7 +57,6 @@ void RegisterConvert(CLI::App& app) {
     side["brdfkit"] = BRDFKIT_VERSION;
     side["command"] = "convert";
     side["target"] = formats::WriteFormat(out, f, o);
-    side["target"]["path"] = out;
     if (side["target"].contains("warning"))  // what the target format cannot hold
       std::fprintf(stderr, "brdfkit: warning: %s\n", side["target"]["warning"].get<std::string>().c_str());
     side["conventions"] = "f_r in 1/sr without the cosine; wi and wo point away from the surface";

@@ -321,8 +321,7 @@ class StartSearch {
     const std::vector<Candidate> unrefined = Distinct(plain, std::move(candidates));
     if (unrefined.empty()) return memo_[mask] = best;
     // The subset's best optimum contends within kSubsetBestMargin.
-    const std::optional<std::vector<double>> subset_best =
-        distinct.empty() ? std::nullopt : std::optional<std::vector<double>>(distinct.front().p);
+    const std::vector<double>* subset_best = distinct.empty() ? nullptr : &distinct.front().p;
     std::vector<Candidate> refined;
     std::size_t contenders = 0;
     double last = -std::numeric_limits<double>::infinity();

@@ -116,9 +116,17 @@ bool IsAnisotropic(const BrdfFunction& f) {
   return false;
 }
 
+nlohmann::json ModelSource(const BrdfFunction& f, const std::string& spec, const std::string& params,
+                           ConvertOptions& options) {
+  const bool anisotropic = IsAnisotropic(f);
+  options.anisotropic = options.anisotropic || anisotropic;
+  return {{"model", spec}, {"params", params}, {"anisotropic", anisotropic}};
+}
+
 nlohmann::json WriteFormat(const std::string& path, const BrdfFunction& f, const ConvertOptions& o) {
   const Format format = FormatOfName(path);
   nlohmann::json j;
+  j["path"] = path;
   j["format"] = FormatName(format);
   switch (format) {
     case Format::kMerl: {

@@ -39,15 +39,22 @@ Source LoadSource(const std::string& path);
 bool IsAnisotropic(const BrdfFunction& f);
 
 struct ConvertOptions {
-  RglOptions rgl;             // rgl.phi_i < 0: isotropic unless the source is anisotropic (then 24)
+  RglOptions rgl{.phi_i = -1};  // rgl.phi_i < 0: isotropic unless the source is anisotropic (then 24)
   double step_deg = 5;        // ASTM / CSV grid: theta_i, theta_o 0..85 and phi_o 0..360 in this step
   int phi_i = -1;             // ASTM / CSV incident azimuths over [0, 360); < 0: 1, or 8 for anisotropic sources
   bool anisotropic = false;
 };
 
+// A model source f (spec and parameter text as the user gave them): what
+// the sidecar records about it (model, params, anisotropic by
+// IsAnisotropic), and options.anisotropic set when it is.
+nlohmann::json ModelSource(const BrdfFunction& f, const std::string& spec, const std::string& params,
+                           ConvertOptions& options);
+
 // Tabulates f into `path` (format by its extension), atomically. Returns
-// what the sidecar records about the target: its format and resolution, and
-// a "warning" when the format cannot hold the source (anisotropy in MERL).
+// what the sidecar records about the target: its path, format and
+// resolution, and a "warning" when the format cannot hold the source
+// (anisotropy in MERL).
 nlohmann::json WriteFormat(const std::string& path, const BrdfFunction& f, const ConvertOptions& options);
 
 }  // namespace brdfkit::formats

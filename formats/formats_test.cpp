@@ -23,7 +23,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-fs::path Scratch(const std::string& name) { return test::ScratchPath(name); }
+using test::ScratchPath;
 
 Eigen::Vector3d Dir(double theta, double phi) { return SphericalDirection(theta, phi); }
 
@@ -200,7 +200,7 @@ TEST(Formats, LambertReadsRhoOverPiInEveryFormat) {
   const Eigen::Vector3d wi = Dir(0.4, 0.3), wo = Dir(0.7, 2.5);
   for (const char* ext : {".binary", ".bsdf", ".utia", ".astm", ".csv"}) {
     SCOPED_TRACE(ext);
-    const fs::path p = Scratch(std::string("lambert") + ext);
+    const fs::path p = ScratchPath(std::string("lambert") + ext);
     WriteFormat(p.string(), l.Function(), o);
     const Source s = LoadSource(p.string());
     const Rgb<double> f = s.f(wi, wo);
@@ -211,7 +211,7 @@ TEST(Formats, LambertReadsRhoOverPiInEveryFormat) {
 // MERL -> RGL -> eval against the MERL file's own values.
 TEST(Formats, MerlToRglAgreesWithMerl) {
   const Analytic g("lambert+ggx", "lambert.albedo=0.1:0.2:0.3,ggx.alpha=0.25,ggx.f0=0.8");
-  const fs::path merl = Scratch("cross.binary"), rgl = Scratch("cross.bsdf");
+  const fs::path merl = ScratchPath("cross.binary"), rgl = ScratchPath("cross.bsdf");
   MerlTable::FromFunction([&](const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) { return g.Function()(wi, wo); })
       .Write(merl.string());
   const Source m = LoadSource(merl.string());
@@ -236,7 +236,7 @@ TEST(Formats, MerlToRglAgreesWithMerl) {
 
 TEST(Formats, UtiaAndAstmRoundTripsAgainstTheModel) {
   const Analytic g("ggx_aniso", "alpha_x=0.3,alpha_y=0.6,f0=0.5");
-  const fs::path u = Scratch("aniso.utia"), a = Scratch("aniso.astm");
+  const fs::path u = ScratchPath("aniso.utia"), a = ScratchPath("aniso.astm");
   ConvertOptions o;
   o.step_deg = 15;
   o.phi_i = 4;
@@ -276,7 +276,7 @@ TEST(Formats, FitsFromEveryFormatRecoverTheWritingModel) {
   o.step_deg = 10;
   for (const char* ext : {".bsdf", ".utia", ".astm"}) {
     SCOPED_TRACE(ext);
-    const fs::path p = Scratch(std::string("fit") + ext);
+    const fs::path p = ScratchPath(std::string("fit") + ext);
     WriteFormat(p.string(), g.Function(), o);
     fit::Dataset d = fit::LoadDataset(p.string());
     ASSERT_GT(d.samples.size(), 1000u);
@@ -313,7 +313,7 @@ TEST(Formats, BadRglFilesAreNamed) {
   o.theta_i = 3;
   const TensorFile good = MakeRgl(l.Function(), o);
   const std::vector<unsigned char> bytes = good.Serialise();
-  const fs::path p = Scratch("bad.bsdf");
+  const fs::path p = ScratchPath("bad.bsdf");
   const std::string ps = p.string();
   auto with = [&](std::vector<unsigned char> b) { WriteBytes(p, b); return [ps] { RglBsdf::Read(ps); }; };
   std::vector<unsigned char> b = bytes;
@@ -339,7 +339,7 @@ TEST(Formats, BadRglFilesAreNamed) {
 }
 
 TEST(Formats, BadUtiaAndAstmFilesAreNamed) {
-  const fs::path u = Scratch("bad.utia");
+  const fs::path u = ScratchPath("bad.utia");
   WriteBytes(u, std::vector<unsigned char>(1000, 0));
   ExpectError([&] { UtiaTable::Read(u.string()); }, {u.string(), "1000 bytes"});
   std::vector<unsigned char> b(UtiaTable::kFileSize, 0);
@@ -347,7 +347,7 @@ TEST(Formats, BadUtiaAndAstmFilesAreNamed) {
   b[8 * 5 + 6] = 0xf0;
   WriteBytes(u, b);
   ExpectError([&] { UtiaTable::Read(u.string()); }, {u.string(), "negative", "red"});
-  const fs::path a = Scratch("bad.astm");
+  const fs::path a = ScratchPath("bad.astm");
   auto text = [&](const std::string& s) { std::ofstream(a) << s; return [&] { AstmTable::Read(a.string()); }; };
   ExpectError(text("VARS theta_i,phi_i,theta_s,phi_s,R,G,B\n0,0,0,0,1,1,1\n"), {a.string(), "NUM_POINTS"});
   ExpectError(text("NUM_POINTS 1\nVARS theta_i,phi_i,theta_s,phi_s,R,G,B\n0,0,0,0,1,1\n"), {a.string(), "line 3", "short row"});
@@ -368,14 +368,14 @@ TEST(Formats, ModelSourcesAreAnisotropicWhenTheyChangeAsTheSurfaceTurns) {
   EXPECT_FALSE(IsAnisotropic([&](const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) { return m.Lookup(wi, wo, true); }));
   // convert --model tabulates an anisotropic model over incident azimuths
   // (an ASTM grid of 8 by default) and says so in the sidecar.
-  const fs::path out = Scratch("aniso.astm");
+  const fs::path out = ScratchPath("aniso.astm");
   const auto r = test::Brdfkit("convert --model ggx_aniso --params alpha_x=0.1,alpha_y=0.4 --step 30 " + out.string());
   ASSERT_EQ(r.code, 0) << r.out;
   const std::string side = test::ReadText(out.string() + ".json");
   EXPECT_NE(side.find("\"anisotropic\": true"), std::string::npos) << side;
   EXPECT_NE(side.find("\"phi_i\": 8"), std::string::npos) << side;
   // MERL is isotropic: the note says what is lost, on stderr and in the sidecar.
-  const fs::path merl = Scratch("aniso.binary");
+  const fs::path merl = ScratchPath("aniso.binary");
   const auto rm = test::Brdfkit("convert --model ggx_aniso --params alpha_x=0.1,alpha_y=0.4 " + merl.string());
   ASSERT_EQ(rm.code, 0) << rm.out;
   EXPECT_NE(rm.out.find("the source is anisotropic and MERL isotropic"), std::string::npos) << rm.out;
@@ -384,14 +384,14 @@ TEST(Formats, ModelSourcesAreAnisotropicWhenTheyChangeAsTheSurfaceTurns) {
 
 // The command: exit code 2 and nothing written for bad input; a sidecar.
 TEST(Formats, ConvertCommand) {
-  const fs::path out = Scratch("cmd.bsdf"), bad = Scratch("cmd_bad.utia"), out2 = Scratch("cmd_out.astm");
+  const fs::path out = ScratchPath("cmd.bsdf"), bad = ScratchPath("cmd_bad.utia"), out2 = ScratchPath("cmd_out.astm");
   fs::remove(out2);
   WriteBytes(bad, std::vector<unsigned char>(64, 0));
   const auto r = test::Brdfkit("convert " + bad.string() + " " + out2.string());
   EXPECT_EQ(r.code, 2) << r.out;
   EXPECT_NE(r.out.find(bad.string()), std::string::npos) << r.out;
   EXPECT_FALSE(fs::exists(out2));
-  const fs::path out3 = Scratch("cmd_bad_res.bsdf");
+  const fs::path out3 = ScratchPath("cmd_bad_res.bsdf");
   fs::remove(out3);
   const auto res = test::Brdfkit("convert --model lambert --rgl-vndf-theta 1 " + out3.string());
   EXPECT_EQ(res.code, 2) << res.out;

@@ -386,7 +386,6 @@ std::string WriteModel(const std::string& path, const py::object& model, const p
       {"ndf", &formats::RglOptions::ndf},         {"sigma", &formats::RglOptions::sigma},
       {"vndf", &formats::RglOptions::vndf},       {"vndf_theta", &formats::RglOptions::vndf_theta},
       {"samples", &formats::RglOptions::samples}};
-  o.rgl.phi_i = -1;
   for (const auto& [name, value] : rgl) {
     const auto it = fields.find(name);
     if (it == fields.end())
@@ -398,19 +397,15 @@ std::string WriteModel(const std::string& path, const py::object& model, const p
     throw ArgumentError("step_deg must be 0.5 to 45 degrees, got " + FormatDouble(step_deg));
   o.step_deg = step_deg;
   o.phi_i = phi_i;
+  o.anisotropic = anisotropic;
   const ToolModel m = ToolModelArgument(model, params);
   nlohmann::json side;
   RunTool(m, threads, [&](const CancelToken&) {
     const formats::BrdfFunction f = [&m](const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) {
       return m.bxdf->Eval(m.params.data(), wi, wo);
     };
-    const bool source_anisotropic = formats::IsAnisotropic(f);
-    o.anisotropic = anisotropic || source_anisotropic;
-    side["source"] = {{"model", m.spec},
-                      {"params", FormatParams(m.bxdf->Info(), m.params)},
-                      {"anisotropic", source_anisotropic}};
+    side["source"] = formats::ModelSource(f, m.spec, FormatParams(m.bxdf->Info(), m.params), o);
     side["target"] = formats::WriteFormat(path, f, o);
-    side["target"]["path"] = path;
   });
   return side.dump();
 }
