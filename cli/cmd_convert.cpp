@@ -20,13 +20,19 @@ void RegisterConvert(CLI::App& app) {
   static bool no_sidecar = false;
   cmd->add_option("files", files, "IN OUT, or OUT alone with --model")->expected(1, 2);
   AddModelOptions(cmd, margs, false);
-  cmd->add_option("--rgl-theta-i", o.rgl.theta_i, "RGL: incident elevation slices")->capture_default_str();
+  cmd->add_option("--rgl-theta-i", o.rgl.theta_i,
+                  "RGL: incident elevation slices, denser toward grazing (default: 80 isotropic, 32 anisotropic)");
   cmd->add_option("--rgl-phi-i", o.rgl.phi_i, "RGL: incident azimuth slices; 0 isotropic (default: 24 for anisotropic sources)");
-  cmd->add_option("--rgl-samples", o.rgl.samples, "RGL: value table nodes per axis and slice")->capture_default_str();
+  cmd->add_option("--rgl-samples", o.rgl.samples,
+                  "RGL: value table nodes along the azimuth of the normal, per slice (default: 192 isotropic, 64 anisotropic)");
+  cmd->add_option("--rgl-samples-theta", o.rgl.samples_theta,
+                  "RGL: value table nodes along the elevation of the normal (default: as --rgl-samples if given, else 128 "
+                  "isotropic, 64 anisotropic)");
   cmd->add_option("--rgl-vndf", o.rgl.vndf,
-                  "RGL: vndf nodes along the azimuth of the normal (default: 128 isotropic, 64 anisotropic)");
+                  "RGL: vndf nodes along the azimuth of the normal (default: 256 isotropic, 64 anisotropic)");
   cmd->add_option("--rgl-vndf-theta", o.rgl.vndf_theta,
-                  "RGL: vndf nodes along the elevation of the normal (default: as --rgl-vndf)");
+                  "RGL: vndf nodes along the elevation of the normal (default: as --rgl-vndf if given, else 128 isotropic, 64 "
+                  "anisotropic)");
   cmd->add_option("--rgl-ndf", o.rgl.ndf, "RGL: ndf nodes per axis")->capture_default_str();
   cmd->add_option("--step", o.step_deg, "ASTM / CSV: grid step in degrees")->capture_default_str();
   cmd->add_option("--phi-i", o.phi_i, "ASTM / CSV: incident azimuths (default 1, or 8 for anisotropic sources)");

@@ -127,31 +127,48 @@ TEST(RglWriter, NodesReproduceTheSource) {
   EXPECT_LT(worst, 1e-4);
 }
 
-// Between the nodes, at the default resolution: theta_i = 5, 15, ... 75
-// degrees (all between slice nodes), wo on a 1 x 2 degree grid up to theta_o
-// = 89.5 degrees, where f cos(theta_o) is above 1 % of its maximum. Up to
-// theta_o = 60 degrees the error stays below 1 % for every material; beyond,
-// at grazing theta_i, it reaches 0.7-3.6 % (bench/RESULTS.md): mean, 99th
-// percentile and maximum are bounded at 1.3 times what was measured there.
+// At the default resolution, on the measure's grid (theta_i = 1.25, 3.75,
+// ... 78.75 degrees, wo on a 1 x 2 degree grid up to theta_o = 89.5
+// degrees, where f cos(theta_o) is above 1 % of its maximum over wo): within
+// 1 % for lambert and for GGX and Beckmann lobes of alpha 0.05 to 1. The mean
+// and the 99th percentile are bounded at 1.3 times what was measured
+// (bench/RESULTS.md).
 TEST(RglWriter, ReconstructionAccuracyAtTheDefaultResolution) {
   struct Case {
     const char* spec;
     const char* params;
-    double mean, p99, max;
-  } cases[] = {{"lambert", "albedo=0.8", 0.0014, 0.0089, 0.023},    {"ggx", "alpha=0.05", 0.00031, 0.00095, 0.0078},
-               {"ggx", "alpha=0.2", 0.00027, 0.0028, 0.011},        {"ggx", "alpha=1", 0.00095, 0.0081, 0.036},
-               {"beckmann", "alpha=0.05", 0.00073, 0.0051, 0.0071}, {"beckmann", "alpha=0.5", 0.0006, 0.0063, 0.024}};
+    double mean, p99;
+  } cases[] = {{"lambert", "albedo=0.8", 0.00025, 0.0017},     {"ggx", "alpha=0.05", 8.6e-5, 0.00028},
+               {"ggx", "alpha=0.2", 0.0001, 0.00058},         {"ggx", "alpha=0.5", 0.0002, 0.0016},
+               {"ggx", "alpha=1", 0.0002, 0.0017},            {"beckmann", "alpha=0.05", 0.00019, 0.0011},
+               {"beckmann", "alpha=0.5", 0.00016, 0.0015},    {"beckmann", "alpha=1", 0.00019, 0.002}};
   for (const Case& c : cases) {
     SCOPED_TRACE(std::string(c.spec) + " " + c.params);
     const Analytic g(c.spec, c.params);
     const RglBsdf r = RglBsdf::FromTensors(MakeRgl(g.Function(), RglOptions{}), "test");
     const RglAccuracy a = MeasureRglAccuracy(r, g.Function());
-    EXPECT_GT(a.points, 10000u);
+    EXPECT_GT(a.points, 50000u);
     EXPECT_LT(a.mean_relative, 1.3 * c.mean);
     EXPECT_LT(a.p99_relative, 1.3 * c.p99);
-    EXPECT_LT(a.max_relative, 1.3 * c.max);
-    EXPECT_LT(MeasureRglAccuracy(r, g.Function(), 80, 10, 0.01, 60).max_relative, 0.01);
+    EXPECT_LT(a.max_relative, 0.01);
   }
+}
+
+// Refining the resolution lowers the error: GGX alpha 1 at half the default
+// resolution on every axis and at the default (the sidecar's measure).
+TEST(RglWriter, ErrorFallsWithTheResolution) {
+  const Analytic g("ggx", "alpha=1");
+  RglOptions half;
+  half.theta_i = 40;
+  half.ndf = 256;
+  half.vndf = 128;
+  half.vndf_theta = 64;
+  half.samples = 96;
+  half.samples_theta = 64;
+  const RglAccuracy coarse = MeasureRglAccuracy(RglBsdf::FromTensors(MakeRgl(g.Function(), half), "half"), g.Function());
+  const RglAccuracy fine = MeasureRglAccuracy(RglBsdf::FromTensors(MakeRgl(g.Function(), RglOptions{}), "default"), g.Function());
+  EXPECT_LT(fine.max_relative, 0.5 * coarse.max_relative);
+  EXPECT_LT(fine.p99_relative, 0.5 * coarse.p99_relative);
 }
 
 // The vndf rows are aligned (formats/rgl_writer.h): the normal that
@@ -162,10 +179,11 @@ TEST(RglWriter, ReconstructionAccuracyAtTheDefaultResolution) {
 // slices, where the slices' own rows hold).
 TEST(RglWriter, RowsPutTheHorizonAtOneSquareCoordinate) {
   const Analytic g("lambert", "albedo=0.5");
-  RglOptions aniso;
+  RglOptions iso, aniso;
+  iso.samples = iso.samples_theta = 16;  // the vndf alone is measured: the default one
   aniso.phi_i = 9;
   aniso.samples = 16;
-  for (const RglOptions& o : {RglOptions{}, aniso}) {
+  for (const RglOptions& o : {iso, aniso}) {
     SCOPED_TRACE(o.phi_i);
     const RglBsdf r = RglBsdf::FromTensors(MakeRgl(g.Function(), o), "test");
     std::vector<double> phis_i = {0.0};
@@ -185,12 +203,14 @@ TEST(RglWriter, RowsPutTheHorizonAtOneSquareCoordinate) {
           const auto s = r.vndf.Invert(RglBsdf::ThetaToU(lo), uy, r.vndf.Mix(p));
           worst = std::max(worst, std::abs(s[0] - 0.6));
         }
-    // Measured 2.5e-4 isotropic, 9.8e-4 anisotropic (64 rows against 128).
+    // Measured 6.3e-5 isotropic, 9.7e-4 anisotropic (64 rows against 256).
     EXPECT_LT(worst, r.isotropic ? 0.001 : 0.004);
   }
 }
 
-// Lambert rho/pi through every format.
+// Lambert rho/pi through every format: exactly at the tables' nodes, to
+// the RGL reconstruction's accuracy between them (0.23 % at this point and
+// the reduced resolution, 16 slices and 48^2 values).
 TEST(Formats, LambertReadsRhoOverPiInEveryFormat) {
   const Analytic l("lambert", "albedo=0.2:0.5:0.8");
   ConvertOptions o;
@@ -204,7 +224,8 @@ TEST(Formats, LambertReadsRhoOverPiInEveryFormat) {
     WriteFormat(p.string(), l.Function(), o);
     const Source s = LoadSource(p.string());
     const Rgb<double> f = s.f(wi, wo);
-    for (int c = 0; c < 3; ++c) EXPECT_NEAR(f[c], l.params[c] / kPi, 2e-3 * l.params[c] / kPi);
+    const double tolerance = std::string(ext) == ".bsdf" ? 3e-3 : 1e-12;
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(f[c], l.params[c] / kPi, tolerance * l.params[c] / kPi);
   }
 }
 

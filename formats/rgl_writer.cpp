@@ -8,6 +8,8 @@
 #include <utility>
 #include <vector>
 
+#include <tbb/parallel_for.h>
+
 namespace brdfkit::formats {
 
 namespace {
@@ -92,12 +94,19 @@ void AlignedRow(double theta_i, double phi, const double* lobe, double lobe_scal
 }  // namespace
 
 RglOptions WithDefaults(RglOptions o) {
-  // Isotropic files take 128 vndf rows: their aligned rows (above) follow
-  // the horizon's sweep in azimuth (measured in bench/RESULTS.md);
-  // anisotropic files, which store a vndf for each of their phi_i slices,
-  // keep 64.
-  if (o.vndf == 0) o.vndf = o.phi_i == 0 ? 128 : 64;
-  if (o.vndf_theta == 0) o.vndf_theta = o.vndf;
+  // Isotropic files: the resolution at which every source of the accuracy
+  // measure stays within 1 % (bench/RESULTS.md: value rows and vndf rows
+  // follow the horizon's sweep in azimuth, slices its motion with theta_i,
+  // 512 ndf nodes the steep tails of rough Beckmann lobes). Anisotropic
+  // files store the vndf and values once per phi_i slice: 24 x 32 slices of
+  // 64^2.
+  // Columns left automatic follow rows given explicitly (a square table).
+  const bool iso = o.phi_i == 0;
+  if (o.theta_i == 0) o.theta_i = iso ? 80 : 32;
+  if (o.vndf_theta == 0) o.vndf_theta = o.vndf != 0 ? o.vndf : iso ? 128 : 64;
+  if (o.vndf == 0) o.vndf = iso ? 256 : 64;
+  if (o.samples_theta == 0) o.samples_theta = o.samples != 0 ? o.samples : iso ? 128 : 64;
+  if (o.samples == 0) o.samples = iso ? 192 : 64;
   return o;
 }
 
@@ -107,7 +116,8 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
   Check(o.phi_i == 0 || (o.phi_i >= 3 && o.phi_i <= 1024), "phi_i slices must be 0 (isotropic) or 3 to 1024");
   Check(o.theta_max_deg > 0 && o.theta_max_deg < 90, "theta_max must be in (0, 90) degrees");
   const std::pair<const char*, int> resolutions[] = {
-      {"ndf", o.ndf}, {"sigma", o.sigma}, {"vndf", o.vndf}, {"vndf_theta", o.vndf_theta}, {"samples", o.samples}};
+      {"ndf", o.ndf},         {"sigma", o.sigma},     {"vndf", o.vndf},
+      {"vndf_theta", o.vndf_theta}, {"samples", o.samples}, {"samples_theta", o.samples_theta}};
   for (const auto& [name, r] : resolutions)
     Check(r >= 2 && r <= 4096, std::string("resolution ") + name + " must be 2 to 4096, got " + std::to_string(r));
   const bool iso = o.phi_i == 0;
@@ -116,16 +126,16 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
   // 1. ndf: the retro-reflection f(w, w) at every node (0 in the horizon
   // column, where no direction reflects back).
   const std::size_t nd = static_cast<std::size_t>(o.ndf), ns = static_cast<std::size_t>(o.sigma);
+  // Isotropic sources: row 0 only, copied to the others.
   std::vector<double> retro(nd * nd, 0.0);
-  for (std::size_t y = 0; y < nd; ++y)
+  tbb::parallel_for(std::size_t{0}, iso ? 1 : nd, [&](std::size_t y) {
     for (std::size_t x = 0; x + 1 < nd; ++x) {
-      if (iso && y > 0) {
-        retro[y * nd + x] = retro[x];
-        continue;
-      }
-      const Eigen::Vector3d wm = RB::Direction(RB::UToTheta(x / double(nd - 1)), RB::UToPhi(y / double(nd - 1)));
+      const Eigen::Vector3d wm = RB::Direction(RB::UToTheta(double(x) / double(nd - 1)), RB::UToPhi(double(y) / double(nd - 1)));
       retro[y * nd + x] = Luminance(SourceAt(f, wm, wm));
     }
+  });
+  if (iso)
+    for (std::size_t y = 1; y < nd; ++y) std::copy_n(retro.begin(), nd, retro.begin() + std::ptrdiff_t(y * nd));
   // Trapezoidal weights of the nodes over the square times the Jacobian.
   auto node_weight = [](std::size_t i, std::size_t n) { return (i == 0 || i + 1 == n ? 0.5 : 1.0) / double(n - 1); };
   std::vector<Eigen::Vector3d> m_dir(nd * nd);
@@ -139,17 +149,15 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
   // sigma(wi) of a normalised D on the ns x ns square of wi.
   auto sigma_of = [&](const std::vector<float>& dn) {
     std::vector<float> out(ns * ns);
-    for (std::size_t y = 0; y < ns; ++y)
-      for (std::size_t x = 0; x < ns; ++x) {
-        if (iso && y > 0) {
-          out[y * ns + x] = out[x];
-          continue;
-        }
-        const Eigen::Vector3d wi = RB::Direction(RB::UToTheta(x / double(ns - 1)), RB::UToPhi(y / double(ns - 1)));
-        double sum = 0;
-        for (std::size_t i = 0; i < nd * nd; ++i) sum += dn[i] * std::max(0.0, wi.dot(m_dir[i])) * m_w[i];
-        out[y * ns + x] = static_cast<float>(sum);
-      }
+    tbb::parallel_for(std::size_t{0}, (iso ? 1 : ns) * ns, [&](std::size_t k) {
+      const std::size_t y = k / ns, x = k % ns;
+      const Eigen::Vector3d wi = RB::Direction(RB::UToTheta(double(x) / double(ns - 1)), RB::UToPhi(double(y) / double(ns - 1)));
+      double sum = 0;
+      for (std::size_t i = 0; i < nd * nd; ++i) sum += dn[i] * std::max(0.0, wi.dot(m_dir[i])) * m_w[i];
+      out[k] = static_cast<float>(sum);
+    });
+    if (iso)
+      for (std::size_t y = 1; y < ns; ++y) std::copy_n(out.begin(), ns, out.begin() + std::ptrdiff_t(y * ns));
     return out;
   };
   // Floored (so that every direction keeps some density) and normalised so
@@ -190,83 +198,77 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
   const Warp2D sigma_table(sigma, ns, ns, {}, false);
 
   // Slices.
+  // Uniform in tan(theta / 2) (step 0 above); float as the file stores them.
   std::vector<double> theta_nodes(static_cast<std::size_t>(o.theta_i)), phi_nodes;
+  const double t_max = std::tan(o.theta_max_deg * kPi / 180 / 2);
   for (std::size_t k = 0; k < theta_nodes.size(); ++k)
-    theta_nodes[k] = static_cast<float>(o.theta_max_deg * kPi / 180 * double(k) / double(theta_nodes.size() - 1));
+    theta_nodes[k] = static_cast<float>(2 * std::atan(t_max * double(k) / double(theta_nodes.size() - 1)));
   if (iso) {
-    phi_nodes = {static_cast<float>(-kPi), static_cast<float>(kPi)};
+    phi_nodes = {0.0};
   } else {
     for (int k = 0; k < o.phi_i; ++k) phi_nodes.push_back(static_cast<float>(-kPi + 2 * kPi * k / (o.phi_i - 1)));
   }
   const std::size_t np = phi_nodes.size(), nt = theta_nodes.size();
   auto slice_wi = [&](std::size_t a, std::size_t b) { return RB::Direction(theta_nodes[b], iso ? 0.0 : phi_nodes[a]); };
 
-  // 3. vndf over vy rows (azimuth of wm) x vx columns (elevation).
+  // 3. vndf over vy rows (azimuth of wm) x vx columns (elevation), a slice per task.
   const std::size_t vy = static_cast<std::size_t>(o.vndf), vx = static_cast<std::size_t>(o.vndf_theta);
   const double hx = 1.0 / double(vx - 1);
   std::vector<float> vndf(np * nt * vy * vx);
-  std::vector<double> lobe(vy * vx);
-  for (std::size_t a = 0; a < np; ++a)
-    for (std::size_t b = 0; b < nt; ++b) {
-      float* out = vndf.data() + (a * nt + b) * vy * vx;
-      if (iso && a > 0) {
-        std::copy_n(vndf.begin() + std::ptrdiff_t(b * vy * vx), vy * vx, out);
-        continue;
+  tbb::parallel_for(std::size_t{0}, np * nt, [&](std::size_t slice) {
+    const std::size_t a = slice / nt, b = slice % nt;
+    float* out = vndf.data() + slice * vy * vx;
+    const Eigen::Vector3d wi = slice_wi(a, b);
+    const double phi_i = iso ? 0.0 : phi_nodes[a];
+    const double sig = sigma_table.Eval(RB::ThetaToU(theta_nodes[b]), RB::PhiToU(phi_i));
+    // The visible normals (D + kVndfSpread sigma / pi) <wi, wm>+ times the
+    // square's Jacobian u_x sin(theta_m), normalised over the square
+    // (trapezoidal rule on the nodes, as the reader normalises).
+    std::vector<double> lobe(vy * vx);
+    double mass = 0;
+    for (std::size_t y = 0; y < vy; ++y)
+      for (std::size_t x = 0; x < vx; ++x) {
+        const double ux = double(x) * hx, uy = double(y) / double(vy - 1), theta = RB::UToTheta(ux);
+        const Eigen::Vector3d wm = RB::Direction(theta, RB::UToPhi(uy));
+        const double q = (ndf_table.Eval(ux, uy) + kVndfSpread * sig / kPi) * std::max(0.0, wi.dot(wm)) * ux * std::sin(theta);
+        lobe[y * vx + x] = q;
+        mass += q * node_weight(x, vx) * node_weight(y, vy);
       }
-      const Eigen::Vector3d wi = slice_wi(a, b);
-      const double phi_i = iso ? 0.0 : phi_nodes[a];
-      const double sig = sigma_table.Eval(RB::ThetaToU(theta_nodes[b]), RB::PhiToU(phi_i));
-      // The visible normals (D + kVndfSpread sigma / pi) <wi, wm>+ times the
-      // square's Jacobian u_x sin(theta_m), normalised over the square
-      // (trapezoidal rule on the nodes, as the reader normalises).
-      double mass = 0;
-      for (std::size_t y = 0; y < vy; ++y)
-        for (std::size_t x = 0; x < vx; ++x) {
-          const double ux = x * hx, uy = y / double(vy - 1), theta = RB::UToTheta(ux);
-          const Eigen::Vector3d wm = RB::Direction(theta, RB::UToPhi(uy));
-          const double q = (ndf_table.Eval(ux, uy) + kVndfSpread * sig / kPi) * std::max(0.0, wi.dot(wm)) * ux * std::sin(theta);
-          lobe[y * vx + x] = q;
-          mass += q * node_weight(x, vx) * node_weight(y, vy);
-        }
-      // Rows of anisotropic files are absolute azimuths of wm.
-      for (std::size_t y = 0; y < vy; ++y)
-        AlignedRow(theta_nodes[b], RB::UToPhi(y / double(vy - 1)) - phi_i, lobe.data() + y * vx, 1 / mass, vx, out + y * vx);
-    }
+    // Rows of anisotropic files are absolute azimuths of wm.
+    for (std::size_t y = 0; y < vy; ++y)
+      AlignedRow(theta_nodes[b], RB::UToPhi(double(y) / double(vy - 1)) - phi_i, lobe.data() + y * vx, 1 / mass, vx,
+                 out + y * vx);
+  });
   const Warp2D vndf_warp(vndf, vy, vx, {phi_nodes, theta_nodes}, true);
 
-  // 4. values.
-  const std::size_t n = static_cast<std::size_t>(o.samples), plane = n * n;
+  // 4. values: ny rows x nx columns per slice, a slice per task.
+  const std::size_t ny = static_cast<std::size_t>(o.samples), nx = static_cast<std::size_t>(o.samples_theta),
+                    plane = ny * nx;
   std::vector<float> rgb(np * nt * 3 * plane), lum(np * nt * plane);
-  for (std::size_t a = 0; a < np; ++a)
-    for (std::size_t b = 0; b < nt; ++b) {
-      const std::size_t slice = a * nt + b;
-      if (iso && a > 0) {
-        std::copy_n(rgb.begin() + std::ptrdiff_t(b * 3 * plane), 3 * plane, rgb.begin() + std::ptrdiff_t(slice * 3 * plane));
-        std::copy_n(lum.begin() + std::ptrdiff_t(b * plane), plane, lum.begin() + std::ptrdiff_t(slice * plane));
-        continue;
+  tbb::parallel_for(std::size_t{0}, np * nt, [&](std::size_t slice) {
+    const std::size_t a = slice / nt, b = slice % nt;
+    const Eigen::Vector3d wi = slice_wi(a, b);
+    const double sig = sigma_table.Eval(RB::ThetaToU(theta_nodes[b]), RB::PhiToU(iso ? 0.0 : phi_nodes[a]));
+    for (std::size_t y = 0; y < ny; ++y)
+      for (std::size_t x = 0; x < nx; ++x) {
+        const std::array<double, 2> u = vndf_warp.Sample(double(x) / double(nx - 1), double(y) / double(ny - 1), slice);
+        const Eigen::Vector3d wm = RB::Direction(RB::UToTheta(u[0]), RB::UToPhi(u[1]));
+        const Eigen::Vector3d wo = 2 * wi.dot(wm) * wm - wi;
+        // Below the horizon the value continues oddly in cos(theta_o): minus
+        // the value at the mirror image of wo (with the ndf at its half
+        // vector), so that across the horizon the values are c cos(theta_o)
+        // on both sides and their interpolation crosses zero there.
+        const Eigen::Vector3d wo_n = wo.normalized();
+        const Eigen::Vector3d wo_up(wo_n.x(), wo_n.y(), std::max(std::abs(wo_n.z()), 1e-9));
+        const Eigen::Vector3d wm_up = (wi + wo_up).normalized();
+        const double d_at = wo_n.z() >= 0 ? ndf_table.Eval(u[0], u[1])
+                                          : ndf_table.Eval(RB::ThetaToU(std::acos(std::min(wm_up.z(), 1.0))),
+                                                           RB::PhiToU(std::atan2(wm_up.y(), wm_up.x())));
+        const Rgb<double> v = SourceAt(f, wi, wo_up) * wo_n.z() * 4 * sig / d_at;
+        for (int c = 0; c < 3; ++c) rgb[(slice * 3 + c) * plane + y * nx + x] = static_cast<float>(v[c]);
+        lum[slice * plane + y * nx + x] = static_cast<float>(std::max(Luminance(v), 0.0));  // a sampling density
       }
-      const Eigen::Vector3d wi = slice_wi(a, b);
-      const double sig = sigma_table.Eval(RB::ThetaToU(theta_nodes[b]), RB::PhiToU(iso ? 0.0 : phi_nodes[a]));
-      for (std::size_t y = 0; y < n; ++y)
-        for (std::size_t x = 0; x < n; ++x) {
-          const std::array<double, 2> u = vndf_warp.Sample(x / double(n - 1), y / double(n - 1), slice);
-          const Eigen::Vector3d wm = RB::Direction(RB::UToTheta(u[0]), RB::UToPhi(u[1]));
-          const Eigen::Vector3d wo = 2 * wi.dot(wm) * wm - wi;
-          // Below the horizon the value continues oddly in cos(theta_o): minus
-          // the value at the mirror image of wo (with the ndf at its half
-          // vector), so that across the horizon the values are c cos(theta_o)
-          // on both sides and their interpolation crosses zero there.
-          const Eigen::Vector3d wo_n = wo.normalized();
-          const Eigen::Vector3d wo_up(wo_n.x(), wo_n.y(), std::max(std::abs(wo_n.z()), 1e-9));
-          const Eigen::Vector3d wm_up = (wi + wo_up).normalized();
-          const double d_at = wo_n.z() >= 0 ? ndf_table.Eval(u[0], u[1])
-                                            : ndf_table.Eval(RB::ThetaToU(std::acos(std::min(wm_up.z(), 1.0))),
-                                                             RB::PhiToU(std::atan2(wm_up.y(), wm_up.x())));
-          const Rgb<double> v = SourceAt(f, wi, wo_up) * wo_n.z() * 4 * sig / d_at;
-          for (int c = 0; c < 3; ++c) rgb[(slice * 3 + c) * plane + y * n + x] = static_cast<float>(v[c]);
-          lum[slice * plane + y * n + x] = static_cast<float>(std::max(Luminance(v), 0.0));  // a sampling density
-        }
-    }
+  });
 
   TensorFile t;
   t.Add("description", std::vector<unsigned char>(o.description.begin(), o.description.end()));
@@ -276,8 +278,8 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
   t.Add("ndf", ndf, {nd, nd});
   t.Add("sigma", sigma, {ns, ns});
   t.Add("vndf", vndf, {np, nt, vy, vx});
-  t.Add("luminance", lum, {np, nt, n, n});
-  t.Add("rgb", rgb, {np, nt, 3, n, n});
+  t.Add("luminance", lum, {np, nt, ny, nx});
+  t.Add("rgb", rgb, {np, nt, 3, ny, nx});
   return t;
 }
 
@@ -287,40 +289,44 @@ void WriteRgl(const std::string& path, const BrdfFunction& f, const RglOptions& 
 
 RglAccuracy MeasureRglAccuracy(const RglBsdf& file, const BrdfFunction& f, double theta_max_deg, double step_deg,
                                double threshold, double theta_o_max_deg) {
+  const double deg = kPi / 180;
+  std::vector<std::array<double, 2>> incident;  // (theta_i, phi_i) in degrees
+  for (double ti = step_deg / 2; ti <= theta_max_deg; ti += step_deg)
+    for (double pi = 0; pi < 360; pi += 50) {
+      incident.push_back({ti, pi});
+      if (file.isotropic) break;
+    }
+  // The errors of each incident direction, measured side by side.
+  std::vector<std::vector<double>> per(incident.size());
+  tbb::parallel_for(std::size_t{0}, incident.size(), [&](std::size_t k) {
+    const Eigen::Vector3d wi = RglBsdf::Direction(incident[k][0] * deg, incident[k][1] * deg);
+    std::vector<Eigen::Vector3d> wos;
+    std::vector<Rgb<double>> ref;
+    Rgb<double> peak = Rgb<double>::Zero();
+    for (double to = 0.5; to < 90; to += 1)
+      for (double po = 1; po < 360; po += 2) {
+        const Eigen::Vector3d wo = RglBsdf::Direction(to * deg, po * deg);
+        wos.push_back(wo);
+        ref.push_back(f(wi, wo) * wo.z());
+        peak = peak.max(ref.back());
+      }
+    for (std::size_t j = 0; j < wos.size(); ++j) {
+      if (!(std::acos(std::min(wos[j].z(), 1.0)) < theta_o_max_deg * deg)) continue;
+      const Rgb<double> got = file.FrCos(wi, wos[j]);
+      for (int c = 0; c < 3; ++c)
+        if (ref[j][c] > threshold * peak[c]) per[k].push_back(std::abs(got[c] - ref[j][c]) / ref[j][c]);
+    }
+  });
   RglAccuracy acc;
   std::vector<double> errors;
-  const double deg = kPi / 180;
-  std::vector<double> phis = {0.0};
-  if (!file.isotropic)
-    for (double p = 50; p < 360; p += 50) phis.push_back(p);
-  for (double ti = step_deg / 2; ti <= theta_max_deg; ti += step_deg)
-    for (double pi : phis) {
-      const Eigen::Vector3d wi = RglBsdf::Direction(ti * deg, pi * deg);
-      std::vector<Eigen::Vector3d> wos;
-      std::vector<Rgb<double>> ref;
-      Rgb<double> peak = Rgb<double>::Zero();
-      for (double to = 0.5; to < 90; to += 1)
-        for (double po = 1; po < 360; po += 2) {
-          const Eigen::Vector3d wo = RglBsdf::Direction(to * deg, po * deg);
-          wos.push_back(wo);
-          ref.push_back(f(wi, wo) * wo.z());
-          peak = peak.max(ref.back());
-        }
-      for (std::size_t k = 0; k < wos.size(); ++k) {
-        if (!(std::acos(std::min(wos[k].z(), 1.0)) < theta_o_max_deg * deg)) continue;
-        const Rgb<double> got = file.FrCos(wi, wos[k]);
-        for (int c = 0; c < 3; ++c) {
-          if (!(ref[k][c] > threshold * peak[c])) continue;
-          const double e = std::abs(got[c] - ref[k][c]) / ref[k][c];
-          errors.push_back(e);
-          acc.max_relative = std::max(acc.max_relative, e);
-        }
-      }
-    }
+  for (const auto& e : per) errors.insert(errors.end(), e.begin(), e.end());
   acc.points = errors.size();
   if (errors.empty()) return acc;
   double sum = 0;
-  for (double e : errors) sum += e;
+  for (double e : errors) {
+    sum += e;
+    acc.max_relative = std::max(acc.max_relative, e);
+  }
   acc.mean_relative = sum / double(errors.size());
   std::sort(errors.begin(), errors.end());
   acc.p99_relative = errors[std::min(errors.size() - 1, static_cast<std::size_t>(0.99 * double(errors.size())))];

@@ -2,9 +2,14 @@
 // of lobes, a fit result or a measured table, isotropic or anisotropic.
 //
 // The file is built so that the format's own reconstruction reproduces the
-// source. The writer is free in the ndf and the vndf (the reconstruction
-// needs only value x ndf / (4 sigma) right) and chooses them, after the
-// acquisition of Dupuy & Jakob 2018 (sec. 4-5), for interpolation:
+// source. The writer is free in the slices, the ndf and the vndf (the
+// reconstruction needs only value x ndf / (4 sigma) right) and chooses them,
+// after the acquisition of Dupuy & Jakob 2018 (sec. 4-5), for interpolation:
+//  0. slices: theta_i nodes uniform in tan(theta_i / 2), so their spacing
+//     is proportional to 1 + cos(theta_i) (half as wide at grazing, where
+//     the reflection's horizon moves fastest with theta_i); an isotropic
+//     file holds one phi_i slice (phi_i = 0), which the format's readers
+//     take as constant in phi_i;
 //  1. ndf: D(wm) from the retro-reflection, first D ~ f(wm, wm) cos^2
 //     theta_m, then one step of the height-correlated Smith fixed point D ~
 //     f(w, w) cos (2 sigma(w) - cos) (exact for such microfacet BRDFs, whose
@@ -51,14 +56,19 @@ namespace brdfkit::formats {
 using BrdfFunction = std::function<Rgb<double>(const Eigen::Vector3d& wi, const Eigen::Vector3d& wo)>;
 
 struct RglOptions {
-  int theta_i = 32;          // incident elevation slices, uniform over [0, theta_max]
+  // Resolutions 0 are automatic (WithDefaults): isotropic files take the
+  // resolution at which the reconstruction stays within 1 % (measured in
+  // bench/RESULTS.md), anisotropic files, which store every table once per
+  // phi_i slice, a coarser one.
+  int theta_i = 0;           // incident elevation slices over [0, theta_max], denser toward grazing; 0: 80 isotropic, 32 anisotropic
   double theta_max_deg = 87.5;
   int phi_i = 0;             // 0: isotropic; otherwise azimuth slices over [-pi, pi] (the last repeats the first)
-  int ndf = 256;             // ndf resolution (square)
+  int ndf = 512;             // ndf resolution (square)
   int sigma = 64;            // sigma resolution (square)
-  int vndf = 0;              // vndf rows per slice (azimuth of wm); 0: 128 isotropic, 64 anisotropic
-  int vndf_theta = 0;        // vndf columns per slice (elevation of wm); 0: as vndf
-  int samples = 64;          // value tables per slice: samples x samples
+  int vndf = 0;              // vndf rows per slice (azimuth of wm); 0: 256 isotropic, 64 anisotropic
+  int vndf_theta = 0;        // vndf columns per slice (elevation of wm); 0: as vndf if given, else 128 isotropic, 64 anisotropic
+  int samples = 0;           // value table rows per slice (azimuth); 0: 192 isotropic, 64 anisotropic
+  int samples_theta = 0;     // value table columns per slice (elevation); 0: as samples if given, else 128 isotropic, 64 anisotropic
   std::string description = "written by brdfkit";
 };
 
@@ -85,6 +95,6 @@ struct RglAccuracy {
   std::size_t points = 0;
 };
 RglAccuracy MeasureRglAccuracy(const RglBsdf& file, const BrdfFunction& f, double theta_max_deg = 80,
-                               double step_deg = 10, double threshold = 0.01, double theta_o_max_deg = 90);
+                               double step_deg = 2.5, double threshold = 0.01, double theta_o_max_deg = 90);
 
 }  // namespace brdfkit::formats

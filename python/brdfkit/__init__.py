@@ -401,7 +401,7 @@ def write(path, data, format=None, *, rgl=None, step_deg=5.0, phi_i=None, anisot
     rgl : dict, optional
         RGL resolutions, the convert command's --rgl-* options: theta_i,
         phi_i (0 isotropic; default 0, or 24 for an anisotropic model),
-        ndf, sigma, vndf, vndf_theta, samples.
+        ndf, sigma, vndf, vndf_theta, samples, samples_theta.
     step_deg : float
         ASTM and CSV grid step in degrees (0.5 to 45).
     phi_i : int, optional

@@ -385,12 +385,14 @@ std::string WriteModel(const std::string& path, const py::object& model, const p
       {"theta_i", &formats::RglOptions::theta_i}, {"phi_i", &formats::RglOptions::phi_i},
       {"ndf", &formats::RglOptions::ndf},         {"sigma", &formats::RglOptions::sigma},
       {"vndf", &formats::RglOptions::vndf},       {"vndf_theta", &formats::RglOptions::vndf_theta},
-      {"samples", &formats::RglOptions::samples}};
+      {"samples", &formats::RglOptions::samples}, {"samples_theta", &formats::RglOptions::samples_theta}};
   for (const auto& [name, value] : rgl) {
     const auto it = fields.find(name);
-    if (it == fields.end())
-      throw ArgumentError("rgl: unknown resolution '" + name +
-                          "' (known: theta_i, phi_i, ndf, sigma, vndf, vndf_theta, samples)");
+    if (it == fields.end()) {
+      std::string known;
+      for (const auto& field : fields) known += (known.empty() ? "" : ", ") + field.first;
+      throw ArgumentError("rgl: unknown resolution '" + name + "' (known: " + known + ")");
+    }
     o.rgl.*(it->second) = value;
   }
   if (!(step_deg >= 0.5 && step_deg <= 45))
