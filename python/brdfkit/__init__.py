@@ -427,8 +427,12 @@ def write(path, data, format=None, *, rgl=None, step_deg=5.0, phi_i=None, anisot
             raise TypeError(f"rgl must be a dict of resolutions (got {type(rgl).__name__})")
         if phi_i is not None and (not isinstance(phi_i, int) or phi_i < 1):
             raise ValueError(f"phi_i must be a positive int, got {phi_i!r}")
+        try:
+            step = float(step_deg)
+        except (TypeError, ValueError):
+            raise ValueError(f"step_deg must be a number of degrees, got {step_deg!r}") from None
         described = _json.loads(_brdfkit._write_model(
-            _os.fspath(path), data, None, dict(rgl or {}), float(step_deg), -1 if phi_i is None else phi_i,
+            _os.fspath(path), data, None, dict(rgl or {}), step, -1 if phi_i is None else phi_i,
             bool(anisotropic), threads))
         if "warning" in described["target"]:
             _warnings.warn(f"{_os.fspath(path)}: {described['target']['warning']}", UserWarning, stacklevel=2)

@@ -102,6 +102,10 @@ def test_bad_options_and_files_are_named_and_write_nothing(tmp):
         brdfkit.write(tmp / "x.bsdf", LAMBERT, rgl={"rows": 8})
     with pytest.raises(ValueError, match="step_deg must be 0.5 to 45 degrees, got 0.1"):
         brdfkit.write(tmp / "x.astm", LAMBERT, step_deg=0.1)
+    with pytest.raises(ValueError, match="step_deg must be a number of degrees, got 'x'"):
+        brdfkit.write(tmp / "x.astm", LAMBERT, step_deg="x")
+    with pytest.raises(ValueError, match="unknown resolution 'rows' \\(known: .*samples_theta"):
+        brdfkit.write(tmp / "x.bsdf", LAMBERT, rgl={"rows": 8})
     with pytest.raises(ValueError, match="phi_i must be a positive int"):
         brdfkit.write(tmp / "x.astm", LAMBERT, phi_i=0)
     with pytest.raises(TypeError, match="rgl files are written from a model"):
