@@ -417,7 +417,8 @@ def write(path, data, format=None, *, rgl=None, step_deg=5.0, phi_i=None, anisot
     -------
     dict or None
         For a model: what ``convert``'s sidecar says (source: model,
-        params, anisotropic; target: format, resolution, path, for RGL the
+        params, anisotropic, and the model's settings such as a measured
+        file's path; target: format, resolution, path, for RGL the
         reconstruction error, and a warning where the format cannot hold the
         model, which is also issued as a UserWarning). None for arrays.
     """

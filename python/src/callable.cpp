@@ -669,6 +669,7 @@ ToolModel ToolModelArgument(const py::object& model, const py::object& params) {
   t.spec = m.model.Spec();
   t.params = m.params;
   t.bxdf = m.bxdf;
+  t.settings = m.settings;
   return t;
 }
 

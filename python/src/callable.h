@@ -62,6 +62,7 @@ struct ToolModel {
   std::vector<double> params;
   std::shared_ptr<const Bxdf<double>> bxdf;
   std::shared_ptr<CallState> calls;  // PythonModel only
+  Settings settings;                 // a Model's settings (e.g. path)
 };
 ToolModel ToolModelArgument(const py::object& model, const py::object& params);
 

@@ -145,6 +145,7 @@ struct PyModel {
   std::vector<float> params_f;
   std::shared_ptr<const Bxdf<double>> bxdf;
   std::shared_ptr<const Bxdf<float>> bxdf_f;
+  Settings settings;  // as given (e.g. path of a measured model)
 };
 
 // spec: "ggx", "lambert+ggx", "merl:FILE"; params: None, "name=value,...",

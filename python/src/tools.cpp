@@ -407,6 +407,7 @@ std::string WriteModel(const std::string& path, const py::object& model, const p
       return m.bxdf->Eval(m.params.data(), wi, wo);
     };
     side["source"] = formats::ModelSource(f, m.spec, FormatParams(m.bxdf->Info(), m.params), o);
+    if (!m.settings.empty()) side["source"]["settings"] = m.settings;  // e.g. the measured file's path
     side["target"] = formats::WriteFormat(path, f, o);
   });
   return side.dump();

@@ -95,6 +95,14 @@ def test_a_python_model_into_utia(tmp):
     np.testing.assert_allclose(brdfkit.read(tmp / "p.utia")["f"], 0.4 / np.pi, rtol=1e-15)
 
 
+def test_a_measured_file_into_utia_names_its_source(tmp):
+    brdfkit.write(tmp / "l.utia", LAMBERT)
+    described = brdfkit.write(tmp / "again.utia", brdfkit.Model("utia", {"path": str(tmp / "l.utia")}))
+    assert described["source"]["model"] == "utia"
+    assert described["source"]["settings"] == {"path": str(tmp / "l.utia")}
+    np.testing.assert_allclose(brdfkit.read(tmp / "again.utia")["f"], brdfkit.read(tmp / "l.utia")["f"], rtol=1e-15)
+
+
 def test_bad_options_and_files_are_named_and_write_nothing(tmp):
     with pytest.raises(ValueError, match="vndf_theta must be 2 to 4096, got 1"):
         brdfkit.write(tmp / "x.bsdf", LAMBERT, rgl={"vndf_theta": 1})
