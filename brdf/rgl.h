@@ -71,28 +71,32 @@ class Warp2D {
       slices_ *= p.size();
     }
     if (data.size() != slices_ * w * h) throw std::invalid_argument("table size disagrees with its shape");
-    data_.assign(data.begin(), data.end());
+    data_ = std::move(data);  // float as the files store it
     if (!normalised) return;
     cond_.resize(data_.size());
     marg_.resize(slices_ * h);
     for (std::size_t s = 0; s < slices_; ++s) {
-      double* d = data_.data() + s * w * h;
+      float* d = data_.data() + s * w * h;
       double* cond = cond_.data() + s * w * h;
       double* marg = marg_.data() + s * h;
-      for (std::size_t y = 0; y < h; ++y) {
-        cond[y * w] = 0;
-        for (std::size_t x = 0; x + 1 < w; ++x)
-          cond[y * w + x + 1] = cond[y * w + x] + 0.5 * (d[y * w + x] + d[y * w + x + 1]);
-      }
-      marg[0] = 0;
-      for (std::size_t y = 0; y + 1 < h; ++y) marg[y + 1] = marg[y] + 0.5 * (cond[y * w + w - 1] + cond[(y + 1) * w + w - 1]);
-      const double total = marg[h - 1];
+      // The CDFs (trapezoidal along x, then over the rows) of the density d.
+      const auto integrate = [&] {
+        for (std::size_t y = 0; y < h; ++y) {
+          cond[y * w] = 0;
+          for (std::size_t x = 0; x + 1 < w; ++x)
+            cond[y * w + x + 1] = cond[y * w + x] + 0.5 * (double(d[y * w + x]) + double(d[y * w + x + 1]));
+        }
+        marg[0] = 0;
+        for (std::size_t y = 0; y + 1 < h; ++y) marg[y + 1] = marg[y] + 0.5 * (cond[y * w + w - 1] + cond[(y + 1) * w + w - 1]);
+        return marg[h - 1];
+      };
+      const double total = integrate();
       if (!(total > 0)) throw std::invalid_argument("slice " + std::to_string(s) + " has no mass");
-      for (std::size_t i = 0; i < w * h; ++i) {
-        d[i] /= total;
-        cond[i] /= total;
-      }
-      for (std::size_t y = 0; y < h; ++y) marg[y] /= total;
+      // Normalised in float, then integrated again, so that the CDFs are
+      // those of the stored density (Invert undoes Sample to rounding); their
+      // total is then 1 to float rounding, and Sample and Invert scale by it.
+      for (std::size_t i = 0; i < w * h; ++i) d[i] = static_cast<float>(d[i] / total);
+      integrate();
     }
   }
 
@@ -163,9 +167,12 @@ class Warp2D {
     const double c1 = c(i + w_) + tx * (v01 + 0.5 * tx * (v11 - v01));
     const double r0 = c(oy * w_ + w_ - 1), r1 = c((oy + 1) * w_ + w_ - 1);
     const double row = (1 - ty) * r0 + ty * r1;
-    double marg = 0;
-    for (int k = 0; k < m.count; ++k) marg += m.weight[k] * marg_[m.index[k] * h_ + oy];
-    const double sy = marg + ty * (r0 + 0.5 * ty * (r1 - r0));
+    double marg = 0, total = 0;
+    for (int k = 0; k < m.count; ++k) {
+      marg += m.weight[k] * marg_[m.index[k] * h_ + oy];
+      total += m.weight[k] * marg_[m.index[k] * h_ + h_ - 1];
+    }
+    const double sy = (marg + ty * (r0 + 0.5 * ty * (r1 - r0))) / total;
     // A row of zero density has no conditional distribution: its start.
     const double sx = row > 0 ? ((1 - ty) * c0 + ty * c1) / row : 0.0;
     return {std::clamp(sx, 0.0, 1.0), std::clamp(sy, 0.0, 1.0)};
@@ -173,9 +180,10 @@ class Warp2D {
 
   // The warp of one slice: square coordinate s -> u (the inverse of Invert).
   std::array<double, 2> Sample(double sx, double sy, std::size_t slice) const {
-    const double* d = data_.data() + slice * w_ * h_;
+    const float* d = data_.data() + slice * w_ * h_;
     const double* cond = cond_.data() + slice * w_ * h_;
     const double* marg = marg_.data() + slice * h_;
+    sy *= marg[h_ - 1];
     std::size_t oy = static_cast<std::size_t>(std::upper_bound(marg, marg + h_, sy) - marg);
     oy = std::min(oy == 0 ? 0 : oy - 1, h_ - 2);
     const double r0 = cond[oy * w_ + w_ - 1], r1 = cond[(oy + 1) * w_ + w_ - 1];
@@ -201,9 +209,10 @@ class Warp2D {
     o = std::min(static_cast<std::size_t>(x), n - 2);
     t = x - double(o);
   }
-  double Mixed(const std::vector<double>& v, std::size_t j, const SliceMix& m) const {
+  template <typename V>
+  double Mixed(const std::vector<V>& v, std::size_t j, const SliceMix& m) const {
     double s = 0;
-    for (int k = 0; k < m.count; ++k) s += m.weight[k] * v[m.index[k] * w_ * h_ + j];
+    for (int k = 0; k < m.count; ++k) s += m.weight[k] * double(v[m.index[k] * w_ * h_ + j]);
     return s;
   }
   // t in [0, 1] with t a + t^2 (b - a) / 2 = r: the CDF of a density linear
@@ -219,7 +228,8 @@ class Warp2D {
 
   std::size_t w_ = 0, h_ = 0, slices_ = 0;
   std::vector<std::vector<double>> params_;
-  std::vector<double> data_, cond_, marg_;
+  std::vector<float> data_;  // the density normalised per slice (normalised warps), else the table
+  std::vector<double> cond_, marg_;
 };
 
 class RglBsdf {
