@@ -182,7 +182,7 @@ LoadedModel LoadFitModel(const std::string& path) {
   if (!j.is_object() || !j.contains("model") || !j["model"].is_string() || !j.contains("params") ||
       !j["params"].is_object())
     throw UsageError("fit result '" + path + "' lacks \"model\" (string) and \"params\" (object)");
-  LoadedModel out{Model::Parse(j["model"].get<std::string>()), {}};
+  LoadedModel out{Model::Parse(j["model"].get<std::string>()), {}, {}};
   const ModelInfo& info = out.model.Info();
   out.params = info.Defaults();
   for (std::size_t i = 0; i < info.params.size(); ++i) {

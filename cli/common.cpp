@@ -47,7 +47,7 @@ LoadedModel LoadModel(const ModelArgs& args) {
     if (is_setting) settings[k] = v;
     else numeric += (numeric.empty() ? "" : ",") + k + "=" + v;
   }
-  LoadedModel out{Model::Parse(args.model, settings), {}};
+  LoadedModel out{Model::Parse(args.model, settings), {}, settings};
   out.params = ParseParams(out.model.Info(), numeric);
   return out;
 }

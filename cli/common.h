@@ -43,6 +43,7 @@ void AddModelOptions(CLI::App* cmd, ModelArgs& args, bool required = true);
 struct LoadedModel {
   Model model;
   std::vector<double> params;
+  Settings settings;  // those given with the parameters (e.g. path=)
 };
 
 // Parses --model and --params (settings such as path= go to the model).

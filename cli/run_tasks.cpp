@@ -29,11 +29,11 @@ LoadedModel MaterialModel(const MaterialSpec& m, const RunContext& ctx) {
   namespace fs = std::filesystem;
   switch (m.kind) {
     case MaterialSpec::Kind::kAnalytic: {
-      LoadedModel out{Model::Parse(m.model), m.params};
+      LoadedModel out{Model::Parse(m.model), m.params, {}};
       return out;
     }
     case MaterialSpec::Kind::kMeasured: {
-      LoadedModel out{Model::Parse(m.model, Settings{{"path", m.path}}), {}};
+      LoadedModel out{Model::Parse(m.model, Settings{{"path", m.path}}), {}, {{"path", m.path}}};
       out.params = out.model.Info().Defaults();
       return out;
     }

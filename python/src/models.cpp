@@ -47,10 +47,7 @@ std::string ParamsText(const py::object& params) {
 PyModel MakeModel(const std::string& spec, const py::object& params) {
   cli::ModelArgs args{spec, ParamsText(params)};
   cli::LoadedModel lm = cli::LoadModel(args);
-  PyModel m{lm.model, lm.params, {}, nullptr, nullptr, {}};
-  const std::vector<std::string>& names = m.model.Info().settings;
-  for (const auto& [k, v] : SplitAssignments(args.params))
-    if (std::find(names.begin(), names.end(), k) != names.end()) m.settings[k] = v;
+  PyModel m{lm.model, lm.params, {}, nullptr, nullptr, lm.settings};
   m.params_f.assign(m.params.begin(), m.params.end());
   m.bxdf = m.model.Make<double>();
   m.bxdf_f = m.model.Make<float>();
