@@ -304,11 +304,15 @@ class FitMemo {
     wi_.resize(3 * rows_);
     wo_.resize(3 * rows_);
     for (std::size_t k = 0; k < rows_; ++k) {
-      // The fitter normalises the data's directions the same way (fit/metrics.cpp, Prepare).
-      const Eigen::Vector3d a = data.samples[k].wi.normalized(), b = data.samples[k].wo.normalized();
+      // The fitter passes the data's directions as they are where all of
+      // them are unit to rounding, else normalised (fit/metrics.cpp,
+      // Prepare): both are keys of the row.
+      const Eigen::Vector3d &ra = data.samples[k].wi, &rb = data.samples[k].wo;
+      const Eigen::Vector3d a = ra.normalized(), b = rb.normalized();
       std::copy(a.data(), a.data() + 3, wi_.data() + 3 * k);
       std::copy(b.data(), b.data() + 3, wo_.data() + 3 * k);
       index_.emplace(Key(a.data(), b.data()), k);
+      index_.emplace(Key(ra.data(), rb.data()), k);
     }
   }
   std::size_t n() const { return n_; }

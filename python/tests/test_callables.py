@@ -154,8 +154,17 @@ def test_fit_of_a_python_model_recovers_the_parameters():
     truth = brdfkit.Model("lambert+ggx", {"lambert.albedo": 0.4, "ggx.alpha": 0.15, "ggx.f0": 0.6})
     wi, wo = unit_rows(2000, seed=11, min_z=0.1), unit_rows(2000, seed=12, min_z=0.1)
     f = truth.eval(wi, wo)
-    model = brdfkit.PythonModel(lambert_ggx, {**ALBEDO, **ALPHA_F0}, name="lg")
+    sizes = []
+
+    def counted(wi, wo, p):
+        sizes.append(len(wi))
+        return lambert_ggx(wi, wo, p)
+
+    model = brdfkit.PythonModel(counted, {**ALBEDO, **ALPHA_F0}, name="lg")
     r = brdfkit.fit(model, wi, wo, f, threads=1)
+    # The function sees whole data sets (values, then central differences),
+    # never one pair at a time: a few hundred calls, not hundreds of thousands.
+    assert set(sizes) == {2000} and len(sizes) < 1000, (len(sizes), sorted(set(sizes))[:5])
     assert r["model"] == "lg" and r["model_object"] is model
     assert r["converged"] is True
     np.testing.assert_allclose([r["params"][k] for k in ("albedo", "alpha", "f0")], [0.4, 0.15, 0.6], rtol=1e-6)
