@@ -157,7 +157,7 @@ nlohmann::json WriteFormat(const std::string& path, const BrdfFunction& f, const
       j["isotropic"] = r.phi_i == 0;
       j["reconstruction"] = {{"max_relative", acc.max_relative}, {"p99_relative", acc.p99_relative},
                              {"mean_relative", acc.mean_relative}, {"points", acc.points},
-                             {"where", "f cos(theta_o) above 1 % of its maximum over wo, theta_i 1.25..78.75 deg in steps of 2.5"}};
+                             {"where", acc.where}};
       break;
     }
     case Format::kAstm:

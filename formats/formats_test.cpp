@@ -154,6 +154,23 @@ TEST(RglWriter, ReconstructionAccuracyAtTheDefaultResolution) {
   }
 }
 
+// The measure describes the grid it used: the incident directions, and
+// their azimuths in anisotropic files.
+TEST(RglWriter, AccuracyNamesItsGrid) {
+  const Analytic g("lambert", "albedo=0.5");
+  const RglAccuracy iso = MeasureRglAccuracy(RglBsdf::FromTensors(MakeRgl(g.Function(), Small()), "iso"), g.Function(),
+                                             40, 10, 0.05, 60);
+  EXPECT_GT(iso.points, 1000u);
+  EXPECT_EQ(iso.where, "f cos(theta_o) above 5 % of its maximum over wo, theta_i 5..35 deg in steps of 10, wo on a "
+                       "1 x 2 deg grid (theta_o 0.5, 1.5 ..) below theta_o 60 deg");
+  RglOptions aniso = Small();
+  aniso.phi_i = 5;
+  const RglAccuracy a = MeasureRglAccuracy(RglBsdf::FromTensors(MakeRgl(g.Function(), aniso), "aniso"), g.Function(),
+                                           20, 10);
+  EXPECT_EQ(a.where, "f cos(theta_o) above 1 % of its maximum over wo, theta_i 5..15 deg in steps of 10, phi_i 0, "
+                     "50 .. 300 deg, wo on a 1 x 2 deg grid (theta_o 0.5, 1.5 ..) below theta_o 90 deg");
+}
+
 // Refining the resolution lowers the error: GGX alpha 1 at half the default
 // resolution on every axis and at the default (the sidecar's measure).
 TEST(RglWriter, ErrorFallsWithTheResolution) {
@@ -425,6 +442,11 @@ TEST(Formats, ConvertCommand) {
   const std::string side = test::ReadText(out.string() + ".json");
   EXPECT_NE(side.find("\"rgl\""), std::string::npos);
   EXPECT_NE(side.find("reconstruction"), std::string::npos);
+  // The sidecar names the grid the measure used (its defaults).
+  EXPECT_NE(side.find("above 1 % of its maximum over wo, theta_i 1.25..78.75 deg in steps of 2.5, wo on a 1 x 2 deg "
+                      "grid (theta_o 0.5, 1.5 ..) below theta_o 90 deg"),
+            std::string::npos)
+      << side;
   const auto ev = test::Brdfkit("eval --model rgl:" + out.string() + " --wi-deg 20,0 --wo-deg 40,120 --json");
   ASSERT_EQ(ev.code, 0) << ev.out;
   // 0.4 / pi = 0.1273, within the 3 % this coarse test resolution reaches.

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <sstream>
 #include <stdexcept>
 #include <string>
 #include <utility>
@@ -296,6 +297,14 @@ RglAccuracy MeasureRglAccuracy(const RglBsdf& file, const BrdfFunction& f, doubl
       incident.push_back({ti, pi});
       if (file.isotropic) break;
     }
+  RglAccuracy acc;
+  std::ostringstream where;
+  where << "f cos(theta_o) above " << 100 * threshold << " % of its maximum over wo";
+  if (!incident.empty())
+    where << ", theta_i " << incident.front()[0] << ".." << incident.back()[0] << " deg in steps of " << step_deg
+          << (file.isotropic ? "" : ", phi_i 0, 50 .. 300 deg");
+  where << ", wo on a 1 x 2 deg grid (theta_o 0.5, 1.5 ..) below theta_o " << theta_o_max_deg << " deg";
+  acc.where = where.str();
   // The errors of each incident direction, measured side by side.
   std::vector<std::vector<double>> per(incident.size());
   tbb::parallel_for(std::size_t{0}, incident.size(), [&](std::size_t k) {
@@ -317,7 +326,6 @@ RglAccuracy MeasureRglAccuracy(const RglBsdf& file, const BrdfFunction& f, doubl
         if (ref[j][c] > threshold * peak[c]) per[k].push_back(std::abs(got[c] - ref[j][c]) / ref[j][c]);
     }
   });
-  RglAccuracy acc;
   std::vector<double> errors;
   for (const auto& e : per) errors.insert(errors.end(), e.begin(), e.end());
   acc.points = errors.size();

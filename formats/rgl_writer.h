@@ -93,6 +93,7 @@ struct RglAccuracy {
   double mean_relative = 0;
   double p99_relative = 0;
   std::size_t points = 0;
+  std::string where;  // the directions and the threshold measured, in words
 };
 RglAccuracy MeasureRglAccuracy(const RglBsdf& file, const BrdfFunction& f, double theta_max_deg = 80,
                                double step_deg = 2.5, double threshold = 0.01, double theta_o_max_deg = 90);
