@@ -50,6 +50,19 @@ Rgb<double> SourceAt(const BrdfFunction& f, const Eigen::Vector3d& wi, const Eig
   return v.max(0.0);
 }
 
+// An n x n table over the warped square, value(x, y) at node (x, y),
+// computed side by side; for an isotropic source (constant in the azimuth
+// of the square's y axis) row 0 only, copied to the others.
+template <class T, class Value>
+std::vector<T> SquareTable(std::size_t n, bool iso, const Value& value) {
+  std::vector<T> out(n * n);
+  tbb::parallel_for(std::size_t{0}, (iso ? 1 : n) * n,
+                    [&](std::size_t k) { out[k] = static_cast<T>(value(k % n, k / n)); });
+  if (iso)
+    for (std::size_t y = 1; y < n; ++y) std::copy_n(out.begin(), n, out.begin() + std::ptrdiff_t(y * n));
+  return out;
+}
+
 // One row of a slice's vndf (above): theta_i of the slice, phi the azimuth
 // of wm relative to wi's, lobe the row of the visible normals times
 // lobe_scale (a density over the square), n nodes.
@@ -127,16 +140,11 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
   // 1. ndf: the retro-reflection f(w, w) at every node (0 in the horizon
   // column, where no direction reflects back).
   const std::size_t nd = static_cast<std::size_t>(o.ndf), ns = static_cast<std::size_t>(o.sigma);
-  // Isotropic sources: row 0 only, copied to the others.
-  std::vector<double> retro(nd * nd, 0.0);
-  tbb::parallel_for(std::size_t{0}, iso ? 1 : nd, [&](std::size_t y) {
-    for (std::size_t x = 0; x + 1 < nd; ++x) {
-      const Eigen::Vector3d wm = RB::Direction(RB::UToTheta(double(x) / double(nd - 1)), RB::UToPhi(double(y) / double(nd - 1)));
-      retro[y * nd + x] = Luminance(SourceAt(f, wm, wm));
-    }
+  const std::vector<double> retro = SquareTable<double>(nd, iso, [&](std::size_t x, std::size_t y) {
+    if (x + 1 == nd) return 0.0;
+    const Eigen::Vector3d wm = RB::Direction(RB::UToTheta(double(x) / double(nd - 1)), RB::UToPhi(double(y) / double(nd - 1)));
+    return Luminance(SourceAt(f, wm, wm));
   });
-  if (iso)
-    for (std::size_t y = 1; y < nd; ++y) std::copy_n(retro.begin(), nd, retro.begin() + std::ptrdiff_t(y * nd));
   // Trapezoidal weights of the nodes over the square times the Jacobian.
   auto node_weight = [](std::size_t i, std::size_t n) { return (i == 0 || i + 1 == n ? 0.5 : 1.0) / double(n - 1); };
   std::vector<Eigen::Vector3d> m_dir(nd * nd);
@@ -149,17 +157,12 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
     }
   // sigma(wi) of a normalised D on the ns x ns square of wi.
   auto sigma_of = [&](const std::vector<float>& dn) {
-    std::vector<float> out(ns * ns);
-    tbb::parallel_for(std::size_t{0}, (iso ? 1 : ns) * ns, [&](std::size_t k) {
-      const std::size_t y = k / ns, x = k % ns;
+    return SquareTable<float>(ns, iso, [&](std::size_t x, std::size_t y) {
       const Eigen::Vector3d wi = RB::Direction(RB::UToTheta(double(x) / double(ns - 1)), RB::UToPhi(double(y) / double(ns - 1)));
       double sum = 0;
       for (std::size_t i = 0; i < nd * nd; ++i) sum += dn[i] * std::max(0.0, wi.dot(m_dir[i])) * m_w[i];
-      out[k] = static_cast<float>(sum);
+      return sum;
     });
-    if (iso)
-      for (std::size_t y = 1; y < ns; ++y) std::copy_n(out.begin(), ns, out.begin() + std::ptrdiff_t(y * ns));
-    return out;
   };
   // Floored (so that every direction keeps some density) and normalised so
   // that int D cos(theta_m) dw = 1.
