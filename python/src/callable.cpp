@@ -317,11 +317,18 @@ class FitMemo {
   }
   std::size_t n() const { return n_; }
 
+  // f and, with dfdp, the derivatives (layout of Evaluate) of `rows` pairs
+  // (wi, wo[k]) in one set of calls: an aperture's nodes, which are no pairs
+  // of the data set.
+  bool Many(const double* p, const double* wi, const double* wo, std::size_t rows, double* f, double* dfdp) const {
+    return Evaluate(p, wi, 0, wo, rows, f, dfdp);
+  }
+
   // f (3) and, with dfdp, the derivatives (3 per parameter, parameter major)
   // of pair (wi, wo) at parameters p; false after a failure.
   bool Get(const double* p, const double* wi, const double* wo, double* f, double* dfdp) {
     const auto it = index_.find(Key(wi, wo));
-    if (it == index_.end()) return Evaluate(p, wi, wo, 1, f, dfdp);
+    if (it == index_.end()) return Evaluate(p, wi, 3, wo, 1, f, dfdp);
     std::lock_guard<std::mutex> lock(mutex_);
     const Entry* e = Find(p, dfdp != nullptr);
     if (!e) {
@@ -329,7 +336,7 @@ class FitMemo {
       fresh.p.assign(p, p + n_);
       fresh.f.resize(3 * rows_);
       if (dfdp) fresh.dfdp.resize(3 * rows_ * n_);
-      fresh.ok = Evaluate(p, wi_.data(), wo_.data(), rows_, fresh.f.data(), dfdp ? fresh.dfdp.data() : nullptr);
+      fresh.ok = Evaluate(p, wi_.data(), 3, wo_.data(), rows_, fresh.f.data(), dfdp ? fresh.dfdp.data() : nullptr);
       // A few vectors: the trust-region solver alternates between its point and a trial step.
       if (entries_.size() == 4) entries_.pop_front();
       entries_.push_back(std::move(fresh));
@@ -371,9 +378,9 @@ class FitMemo {
   // Values of `rows` pairs at p and, with dfdp, central differences in each
   // parameter (one-sided at a bound, where the function may not be defined
   // beyond it).
-  bool Evaluate(const double* p, const double* wi, const double* wo, std::size_t rows, double* f,
-                double* dfdp) const {
-    if (!c_->Eval(p, wi, 3, wo, 3, rows, f)) return false;
+  bool Evaluate(const double* p, const double* wi, std::size_t wi_stride, const double* wo, std::size_t rows,
+                double* f, double* dfdp) const {
+    if (!c_->Eval(p, wi, wi_stride, wo, 3, rows, f)) return false;
     if (!dfdp) return true;
     const ModelInfo& info = c_->model().info;
     std::vector<double> q(p, p + n_), up(3 * rows), down(3 * rows);
@@ -383,9 +390,9 @@ class FitMemo {
       const double h = 6.0555e-6 * std::max(std::abs(p[j]), 1e-3);
       const bool can_up = p[j] + h <= info.params[j].upper, can_down = p[j] - h >= info.params[j].lower;
       q[j] = can_up ? p[j] + h : p[j];
-      if (can_up && !c_->Eval(q.data(), wi, 3, wo, 3, rows, up.data())) return false;
+      if (can_up && !c_->Eval(q.data(), wi, wi_stride, wo, 3, rows, up.data())) return false;
       q[j] = can_down ? p[j] - h : p[j];
-      if (can_down && !c_->Eval(q.data(), wi, 3, wo, 3, rows, down.data())) return false;
+      if (can_down && !c_->Eval(q.data(), wi, wi_stride, wo, 3, rows, down.data())) return false;
       q[j] = p[j];
       const double* hi = can_up ? up.data() : f;
       const double* lo = can_down ? down.data() : f;
@@ -413,6 +420,18 @@ class FitBxdf final : public Bxdf<double> {
     Rgb<double> f;
     memo_->Get(p, wi.data(), wo.data(), f.data(), nullptr);
     return f;
+  }
+  // An aperture's nodes (a fit through an instrument) in one call.
+  Rgb<double> EvalSum(const double* p, const Vec3<double>& wi, const Vec3<double>* wo, const double* w,
+                      std::size_t n) const override {
+    std::vector<double> rows(3 * n), f(3 * n);
+    for (std::size_t k = 0; k < n; ++k) std::copy(wo[k].data(), wo[k].data() + 3, rows.data() + 3 * k);
+    // After a failed call the tool stops; NaN until it does.
+    if (!memo_->Many(p, wi.data(), rows.data(), n, f.data(), nullptr))
+      return Rgb<double>::Constant(std::numeric_limits<double>::quiet_NaN());
+    Rgb<double> sum = Rgb<double>::Zero();
+    for (std::size_t k = 0; k < n; ++k) sum += Rgb<double>(f[3 * k], f[3 * k + 1], f[3 * k + 2]) * w[k];
+    return sum;
   }
   BsdfSample<double> Sample(const double*, const Vec3<double>&, double, double) const override { return {}; }
   double Pdf(const double*, const Vec3<double>&, const Vec3<double>&) const override { return 0; }
@@ -445,6 +464,32 @@ class FitJetBxdf final : public Bxdf<fit::Jet<N>> {
     for (int c = 0; c < 3; ++c) {
       out[c] = J(f[c]);
       for (std::size_t j = 0; j < n; ++j) out[c].v += d[3 * j + c] * p[j].v;
+    }
+    return out;
+  }
+  // An aperture's nodes (a fit through an instrument) in one set of calls:
+  // the weighted sums of the values and of their derivatives, chained as in Eval.
+  Rgb<J> EvalSum(const J* p, const Vec3<J>& wi, const Vec3<J>* wo, const double* w, std::size_t m) const override {
+    const std::size_t n = memo_->n();
+    std::array<double, 32> pa{};
+    for (std::size_t j = 0; j < n; ++j) pa[j] = p[j].a;
+    const double a[3] = {wi.x().a, wi.y().a, wi.z().a};
+    std::vector<double> rows(3 * m), f(3 * m), d(3 * m * n);
+    for (std::size_t k = 0; k < m; ++k)
+      for (int c = 0; c < 3; ++c) rows[3 * k + std::size_t(c)] = wo[k][c].a;
+    // After a failed call the tool stops; NaN until it does.
+    if (!memo_->Many(pa.data(), a, rows.data(), m, f.data(), d.data()))
+      return Rgb<J>::Constant(J(std::numeric_limits<double>::quiet_NaN()));
+    Rgb<J> out;
+    for (int c = 0; c < 3; ++c) {
+      double value = 0;
+      for (std::size_t k = 0; k < m; ++k) value += w[k] * f[3 * k + std::size_t(c)];
+      out[c] = J(value);
+      for (std::size_t j = 0; j < n; ++j) {
+        double dj = 0;
+        for (std::size_t k = 0; k < m; ++k) dj += w[k] * d[3 * (j * m + k) + std::size_t(c)];
+        out[c].v += dj * p[j].v;
+      }
     }
     return out;
   }
