@@ -249,6 +249,18 @@ class Caller {
 };
 
 // A PythonModel as the tools' evaluator: batches go to Python in one call.
+// sum_k w[k] f(wi, wo[k]) with the n values from one call eval(rows, f)
+// (rows: wo as rows of 3; a failed call leaves NaN, Caller::Eval).
+template <class EvalRows>
+Rgb<double> WeightedSum(const Vec3<double>* wo, const double* w, std::size_t n, const EvalRows& eval) {
+  std::vector<double> rows(3 * n), f(3 * n);
+  for (std::size_t k = 0; k < n; ++k) std::copy(wo[k].data(), wo[k].data() + 3, rows.data() + 3 * k);
+  eval(rows.data(), f.data());
+  Rgb<double> sum = Rgb<double>::Zero();
+  for (std::size_t k = 0; k < n; ++k) sum += Rgb<double>(f[3 * k], f[3 * k + 1], f[3 * k + 2]) * w[k];
+  return sum;
+}
+
 class PythonBxdf final : public Bxdf<double> {
  public:
   explicit PythonBxdf(std::shared_ptr<const Caller> caller) : c_(std::move(caller)) {}
@@ -260,12 +272,7 @@ class PythonBxdf final : public Bxdf<double> {
   }
   Rgb<double> EvalSum(const double* p, const Vec3<double>& wi, const Vec3<double>* wo, const double* w,
                       std::size_t n) const override {
-    std::vector<double> rows(3 * n), f(3 * n);
-    for (std::size_t k = 0; k < n; ++k) std::copy(wo[k].data(), wo[k].data() + 3, rows.data() + 3 * k);
-    c_->Eval(p, wi.data(), 0, rows.data(), 3, n, f.data());
-    Rgb<double> sum = Rgb<double>::Zero();
-    for (std::size_t k = 0; k < n; ++k) sum += Rgb<double>(f[3 * k], f[3 * k + 1], f[3 * k + 2]) * w[k];
-    return sum;
+    return WeightedSum(wo, w, n, [&](const double* rows, double* f) { c_->Eval(p, wi.data(), 0, rows, 3, n, f); });
   }
   void EvalBatch(const double* p, const double* wi, std::size_t wi_stride, const double* wo, std::size_t wo_stride,
                  std::size_t n, double* out) const override {
@@ -424,14 +431,7 @@ class FitBxdf final : public Bxdf<double> {
   // An aperture's nodes (a fit through an instrument) in one call.
   Rgb<double> EvalSum(const double* p, const Vec3<double>& wi, const Vec3<double>* wo, const double* w,
                       std::size_t n) const override {
-    std::vector<double> rows(3 * n), f(3 * n);
-    for (std::size_t k = 0; k < n; ++k) std::copy(wo[k].data(), wo[k].data() + 3, rows.data() + 3 * k);
-    // After a failed call the tool stops; NaN until it does.
-    if (!memo_->Many(p, wi.data(), rows.data(), n, f.data(), nullptr))
-      return Rgb<double>::Constant(std::numeric_limits<double>::quiet_NaN());
-    Rgb<double> sum = Rgb<double>::Zero();
-    for (std::size_t k = 0; k < n; ++k) sum += Rgb<double>(f[3 * k], f[3 * k + 1], f[3 * k + 2]) * w[k];
-    return sum;
+    return WeightedSum(wo, w, n, [&](const double* rows, double* f) { memo_->Many(p, wi.data(), rows, n, f, nullptr); });
   }
   BsdfSample<double> Sample(const double*, const Vec3<double>&, double, double) const override { return {}; }
   double Pdf(const double*, const Vec3<double>&, const Vec3<double>&) const override { return 0; }
@@ -477,9 +477,9 @@ class FitJetBxdf final : public Bxdf<fit::Jet<N>> {
     std::vector<double> rows(3 * m), f(3 * m), d(3 * m * n);
     for (std::size_t k = 0; k < m; ++k)
       for (int c = 0; c < 3; ++c) rows[3 * k + std::size_t(c)] = wo[k][c].a;
-    // After a failed call the tool stops; NaN until it does.
-    if (!memo_->Many(pa.data(), a, rows.data(), m, f.data(), d.data()))
-      return Rgb<J>::Constant(J(std::numeric_limits<double>::quiet_NaN()));
+    // After a failed call the tool stops; NaN until it does (a failed
+    // difference call leaves the values finite and the derivatives unset).
+    if (!memo_->Many(pa.data(), a, rows.data(), m, f.data(), d.data())) return Rgb<J>::Constant(J(kNaN));
     Rgb<J> out;
     for (int c = 0; c < 3; ++c) {
       double value = 0;
