@@ -132,16 +132,19 @@ TEST(RglWriter, NodesReproduceTheSource) {
 // degrees, where f cos(theta_o) is above 1 % of its maximum over wo): within
 // 1 % for lambert and for GGX and Beckmann lobes of alpha 0.05 to 1. The mean
 // and the 99th percentile are bounded at 1.3 times what was measured
-// (bench/RESULTS.md).
+// (bench/RESULTS.md). Towards grazing incidence, on the same grid extended
+// to theta_i = 83.75 and 86.25 degrees, the maxima are bounded at 1.5 % and
+// 5 % (measured at most 1.44 % and 4.1 %, both lambert; the rows that
+// followed the horizon less closely reached 1.8 % and 23 %, GGX alpha 1).
 TEST(RglWriter, ReconstructionAccuracyAtTheDefaultResolution) {
   struct Case {
     const char* spec;
     const char* params;
     double mean, p99;
-  } cases[] = {{"lambert", "albedo=0.8", 0.00025, 0.0017},     {"ggx", "alpha=0.05", 8.6e-5, 0.00028},
-               {"ggx", "alpha=0.2", 0.0001, 0.00058},         {"ggx", "alpha=0.5", 0.0002, 0.0016},
-               {"ggx", "alpha=1", 0.0002, 0.0017},            {"beckmann", "alpha=0.05", 0.00019, 0.0011},
-               {"beckmann", "alpha=0.5", 0.00016, 0.0015},    {"beckmann", "alpha=1", 0.00019, 0.002}};
+  } cases[] = {{"lambert", "albedo=0.8", 0.00025, 0.0019},     {"ggx", "alpha=0.05", 8.7e-5, 0.00029},
+               {"ggx", "alpha=0.2", 0.000105, 0.00058},       {"ggx", "alpha=0.5", 0.0002, 0.0018},
+               {"ggx", "alpha=1", 0.00021, 0.002},            {"beckmann", "alpha=0.05", 0.00019, 0.0011},
+               {"beckmann", "alpha=0.5", 0.00016, 0.0016},    {"beckmann", "alpha=1", 0.0002, 0.0023}};
   for (const Case& c : cases) {
     SCOPED_TRACE(std::string(c.spec) + " " + c.params);
     const Analytic g(c.spec, c.params);
@@ -151,6 +154,8 @@ TEST(RglWriter, ReconstructionAccuracyAtTheDefaultResolution) {
     EXPECT_LT(a.mean_relative, 1.3 * c.mean);
     EXPECT_LT(a.p99_relative, 1.3 * c.p99);
     EXPECT_LT(a.max_relative, 0.01);
+    EXPECT_LT(MeasureRglAccuracy(r, g.Function(), 85).max_relative, 0.015);
+    EXPECT_LT(MeasureRglAccuracy(r, g.Function(), 87.5).max_relative, 0.05);
   }
 }
 

@@ -24,15 +24,30 @@ constexpr double kNdfFloor = 1e-12;
 // around the horizon of wo whose density in cos(theta_o) is the same in
 // every row and slice: kBandShare times a Gaussian of cos(theta_o) /
 // kHorizonBand. The rest (the visible normals, a kUniformShare of uniform
-// density for the pole and the rows facing away from wi) fades out within
-// about kTaper of the horizon in cos(theta_o) and is scaled on each side of
-// the horizon so that the row's CDF reaches 1 - kBelowHorizon at the
-// horizon: the horizon then sits at the same square coordinate s_x in every
-// row, the values near it are the same function of s in every row and
-// slice, and their interpolation (bilinear within a slice, linear across
-// slices) follows f cos(theta_o) to the horizon.
+// density for the pole and the rows facing away from wi) is zero within a
+// gap |cos(theta_o)| < w of the horizon (RestGap), rises smoothly to full
+// weight at 2 w, and is scaled on each side of the horizon so that the
+// row's CDF reaches 1 - kBelowHorizon at the horizon: the horizon then sits
+// at the same square coordinate s_x in every row, near it the CDF is the
+// band's alone, one function of cos(theta_o) in every row and slice, so the
+// reader's blend of neighbouring rows and slices puts a query's horizon
+// where it is, and the values' interpolation (bilinear within a slice,
+// linear across slices) follows f cos(theta_o) to it.
 constexpr double kVndfSpread = 0.2, kLobeShare = 0.35, kUniformShare = 0.5, kBandShare = 0.4, kHorizonBand = 0.2,
-                 kTaper = 0.2, kBelowHorizon = 0.4;
+                 kBelowHorizon = 0.4;
+
+// The gap w of a slice at theta_i. At a query's horizon the cos(theta_o) of
+// the blended neighbours differ by up to the node spacing (|d cos(theta_o) /
+// d phi_m| and |d cos(theta_o) / d theta_i| are at most 1), so w is at
+// least 1.2 spacing (the largest spacing of the vndf rows and theta_i
+// slices, in radians); away from grazing it widens to 0.5 cos(theta_i), up
+// to 0.12; and it stays below
+// 0.9 cos(theta_i): every row reaches |cos(theta_o)| = cos(theta_i) on both
+// sides (at the pole and at the equator), so the rest keeps room there.
+double RestGap(double theta_i, double spacing) {
+  const double c = std::cos(theta_i);
+  return std::min({0.12, std::max(1.2 * spacing, 0.5 * c), 0.9 * c});
+}
 
 double Luminance(const Rgb<double>& c) { return 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]; }
 
@@ -64,9 +79,10 @@ std::vector<T> SquareTable(std::size_t n, bool iso, const Value& value) {
 }
 
 // One row of a slice's vndf (above): theta_i of the slice, phi the azimuth
-// of wm relative to wi's, lobe the row of the visible normals times
-// lobe_scale (a density over the square), n nodes.
-void AlignedRow(double theta_i, double phi, const double* lobe, double lobe_scale, std::size_t n, float* out) {
+// of wm relative to wi's, gap the rest's (RestGap), lobe the row of the
+// visible normals times lobe_scale (a density over the square), n nodes.
+void AlignedRow(double theta_i, double phi, double gap, const double* lobe, double lobe_scale, std::size_t n,
+                float* out) {
   const double h = 1.0 / double(n - 1);
   // cos(theta_o) of the reflection of wi about wm = (theta, phi) is
   // r cos(2 theta - delta): one zero, at theta = (delta + pi / 2) / 2.
@@ -77,10 +93,11 @@ void AlignedRow(double theta_i, double phi, const double* lobe, double lobe_scal
   std::vector<double> band(n), left(n, 0.0), right(n, 0.0);
   for (std::size_t x = 0; x < n; ++x) {
     const double ux = double(x) * h, theta = RglBsdf::UToTheta(ux);
-    const double z = r * std::cos(2 * theta - delta) / kHorizonBand, zt = z * kHorizonBand / kTaper;
+    const double cos_o = r * std::cos(2 * theta - delta), z = cos_o / kHorizonBand;
     const double dz = 2 * r * std::abs(std::sin(2 * theta - delta)) * kPi * ux / kHorizonBand;  // |dz / du_x|
     band[x] = kBandShare * std::exp(-z * z) * dz / std::sqrt(kPi);
-    (x <= k ? left : right)[x] = (kLobeShare * lobe[x] * lobe_scale + kUniformShare) * (1 - std::exp(-zt * zt));
+    const double t = std::clamp((std::abs(cos_o) - gap) / gap, 0.0, 1.0), taper = t * t * (3 - 2 * t);
+    (x <= k ? left : right)[x] = (kLobeShare * lobe[x] * lobe_scale + kUniformShare) * taper;
   }
   // Integrals over [0, horizon] and over the row of the piecewise-linear density.
   auto integrals = [&](const std::vector<double>& v) {
@@ -218,6 +235,9 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
   // 3. vndf over vy rows (azimuth of wm) x vx columns (elevation), a slice per task.
   const std::size_t vy = static_cast<std::size_t>(o.vndf), vx = static_cast<std::size_t>(o.vndf_theta);
   const double hx = 1.0 / double(vx - 1);
+  // The largest spacing of the vndf rows (azimuth of wm) and theta_i slices, in radians.
+  double spacing = 2 * kPi / double(vy - 1);
+  for (std::size_t b = 0; b + 1 < nt; ++b) spacing = std::max(spacing, theta_nodes[b + 1] - theta_nodes[b]);
   std::vector<float> vndf(np * nt * vy * vx);
   tbb::parallel_for(std::size_t{0}, np * nt, [&](std::size_t slice) {
     const std::size_t a = slice / nt, b = slice % nt;
@@ -239,9 +259,10 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
         mass += q * node_weight(x, vx) * node_weight(y, vy);
       }
     // Rows of anisotropic files are absolute azimuths of wm.
+    const double gap = RestGap(theta_nodes[b], spacing);
     for (std::size_t y = 0; y < vy; ++y)
-      AlignedRow(theta_nodes[b], RB::UToPhi(double(y) / double(vy - 1)) - phi_i, lobe.data() + y * vx, 1 / mass, vx,
-                 out + y * vx);
+      AlignedRow(theta_nodes[b], RB::UToPhi(double(y) / double(vy - 1)) - phi_i, gap, lobe.data() + y * vx, 1 / mass,
+                 vx, out + y * vx);
   });
   const Warp2D vndf_warp(vndf, vy, vx, {phi_nodes, theta_nodes}, true);
 
