@@ -41,9 +41,9 @@ constexpr double kVndfSpread = 0.2, kLobeShare = 0.35, kUniformShare = 0.5, kBan
 // d phi_m| and |d cos(theta_o) / d theta_i| are at most 1), so w is at
 // least 1.2 spacing (the largest spacing of the vndf rows and theta_i
 // slices, in radians); away from grazing it widens to 0.5 cos(theta_i), up
-// to 0.12; and it stays below
-// 0.9 cos(theta_i): every row reaches |cos(theta_o)| = cos(theta_i) on both
-// sides (at the pole and at the equator), so the rest keeps room there.
+// to 0.12; and it stays below 0.9 cos(theta_i): every row reaches
+// |cos(theta_o)| = cos(theta_i) on both sides (at the pole and at the
+// equator), so the rest keeps room there.
 double RestGap(double theta_i, double spacing) {
   const double c = std::cos(theta_i);
   return std::min({0.12, std::max(1.2 * spacing, 0.5 * c), 0.9 * c});

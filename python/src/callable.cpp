@@ -248,7 +248,6 @@ class Caller {
   std::shared_ptr<CallState> state_;
 };
 
-// A PythonModel as the tools' evaluator: batches go to Python in one call.
 // sum_k w[k] f(wi, wo[k]) with the n values from one call eval(rows, f)
 // (rows: wo as rows of 3; a failed call leaves NaN, Caller::Eval).
 template <class EvalRows>
@@ -261,6 +260,7 @@ Rgb<double> WeightedSum(const Vec3<double>* wo, const double* w, std::size_t n, 
   return sum;
 }
 
+// A PythonModel as the tools' evaluator: batches go to Python in one call.
 class PythonBxdf final : public Bxdf<double> {
  public:
   explicit PythonBxdf(std::shared_ptr<const Caller> caller) : c_(std::move(caller)) {}
@@ -453,26 +453,18 @@ class FitJetBxdf final : public Bxdf<fit::Jet<N>> {
   explicit FitJetBxdf(std::shared_ptr<FitMemo> memo, const ModelInfo& info) : memo_(std::move(memo)), info_(info) {}
   const ModelInfo& Info() const override { return info_; }
   Rgb<J> Eval(const J* p, const Vec3<J>& wi, const Vec3<J>& wo) const override {
-    const std::size_t n = memo_->n();
-    std::array<double, 32> pa{};
-    for (std::size_t j = 0; j < n; ++j) pa[j] = p[j].a;
+    const std::array<double, 32> pa = Values(p);
     const double a[3] = {wi.x().a, wi.y().a, wi.z().a}, b[3] = {wo.x().a, wo.y().a, wo.z().a};
     double f[3];
     std::array<double, 3 * 32> d{};
     memo_->Get(pa.data(), a, b, f, d.data());
-    Rgb<J> out;
-    for (int c = 0; c < 3; ++c) {
-      out[c] = J(f[c]);
-      for (std::size_t j = 0; j < n; ++j) out[c].v += d[3 * j + c] * p[j].v;
-    }
-    return out;
+    return Chain(p, f, d.data());
   }
   // An aperture's nodes (a fit through an instrument) in one set of calls:
   // the weighted sums of the values and of their derivatives, chained as in Eval.
   Rgb<J> EvalSum(const J* p, const Vec3<J>& wi, const Vec3<J>* wo, const double* w, std::size_t m) const override {
     const std::size_t n = memo_->n();
-    std::array<double, 32> pa{};
-    for (std::size_t j = 0; j < n; ++j) pa[j] = p[j].a;
+    const std::array<double, 32> pa = Values(p);
     const double a[3] = {wi.x().a, wi.y().a, wi.z().a};
     std::vector<double> rows(3 * m), f(3 * m), d(3 * m * n);
     for (std::size_t k = 0; k < m; ++k)
@@ -480,18 +472,14 @@ class FitJetBxdf final : public Bxdf<fit::Jet<N>> {
     // After a failed call the tool stops; NaN until it does (a failed
     // difference call leaves the values finite and the derivatives unset).
     if (!memo_->Many(pa.data(), a, rows.data(), m, f.data(), d.data())) return Rgb<J>::Constant(J(kNaN));
-    Rgb<J> out;
-    for (int c = 0; c < 3; ++c) {
-      double value = 0;
-      for (std::size_t k = 0; k < m; ++k) value += w[k] * f[3 * k + std::size_t(c)];
-      out[c] = J(value);
-      for (std::size_t j = 0; j < n; ++j) {
-        double dj = 0;
-        for (std::size_t k = 0; k < m; ++k) dj += w[k] * d[3 * (j * m + k) + std::size_t(c)];
-        out[c].v += dj * p[j].v;
-      }
+    double fs[3] = {0, 0, 0};
+    std::array<double, 3 * 32> ds{};
+    for (std::size_t c = 0; c < 3; ++c) {
+      for (std::size_t k = 0; k < m; ++k) fs[c] += w[k] * f[3 * k + c];
+      for (std::size_t j = 0; j < n; ++j)
+        for (std::size_t k = 0; k < m; ++k) ds[3 * j + c] += w[k] * d[3 * (j * m + k) + c];
     }
-    return out;
+    return Chain(p, fs, ds.data());
   }
   BsdfSample<J> Sample(const J*, const Vec3<J>&, double, double) const override { return {}; }
   J Pdf(const J*, const Vec3<J>&, const Vec3<J>&) const override { return J(0); }
@@ -499,6 +487,23 @@ class FitJetBxdf final : public Bxdf<fit::Jet<N>> {
   bool CanSample() const override { return false; }
 
  private:
+  // The parameters' values.
+  std::array<double, 32> Values(const J* p) const {
+    std::array<double, 32> pa{};
+    for (std::size_t j = 0; j < memo_->n(); ++j) pa[j] = p[j].a;
+    return pa;
+  }
+  // Values f (3) and derivatives d (3 per parameter, parameter major) chained
+  // with the derivatives the Jet parameters carry.
+  Rgb<J> Chain(const J* p, const double* f, const double* d) const {
+    Rgb<J> out;
+    for (int c = 0; c < 3; ++c) {
+      out[c] = J(f[c]);
+      for (std::size_t j = 0; j < memo_->n(); ++j) out[c].v += d[3 * j + std::size_t(c)] * p[j].v;
+    }
+    return out;
+  }
+
   std::shared_ptr<FitMemo> memo_;
   const ModelInfo& info_;
 };
