@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -65,6 +66,57 @@ Rgb<double> SourceAt(const BrdfFunction& f, const Eigen::Vector3d& wi, const Eig
   return v.max(0.0);
 }
 
+// The values' variation along each row of a slice's vndf: at every node
+// (vy rows of the azimuth of wm x vx columns of u_x) d = sqrt(|l''| + l'^2)
+// of l = log(f(wi, wo) / D(wm)) along u_x, which bounds |v'' / v| for the
+// values v ~ f cos(theta_o) / D away from the horizon (the band resolves
+// the cosine's zero there); the largest over the channels, and 0 where f
+// cos(theta_o) is below kSignificant of the slice's maximum (no error
+// there counts, and the floored ndf would make l steep). For a microfacet
+// lobe f / D varies slowly; a sum of lobes moves from one lobe's ratio to
+// the other's where their shares cross, and at grazing incidence (where
+// the specular part of f grows as 1 / cos(theta_i)) the ndf, learnt from the
+// retro-reflection, crosses far from f.
+constexpr double kSignificant = 1e-3, kValueTolerance = 1.5e-3;
+std::vector<double> ValueVariation(const BrdfFunction& f, const Warp2D& ndf, const Eigen::Vector3d& wi,
+                                   std::size_t vy, std::size_t vx) {
+  const double h = 1.0 / double(vx - 1);
+  const double kNone = std::numeric_limits<double>::quiet_NaN();  // no value above the horizon
+  std::array<std::vector<double>, 3> l, fc;
+  for (int c = 0; c < 3; ++c) {
+    l[c].assign(vy * vx, kNone);
+    fc[c].assign(vy * vx, 0.0);
+  }
+  Rgb<double> fc_max = Rgb<double>::Zero();
+  for (std::size_t y = 0; y < vy; ++y)
+    for (std::size_t x = 0; x < vx; ++x) {
+      const double ux = double(x) * h, uy = double(y) / double(vy - 1);
+      const Eigen::Vector3d wm = RglBsdf::Direction(RglBsdf::UToTheta(ux), RglBsdf::UToPhi(uy));
+      if (wi.dot(wm) <= 0) continue;
+      const Eigen::Vector3d wo = (2 * wi.dot(wm) * wm - wi).normalized();
+      if (wo.z() <= 0) continue;
+      const Rgb<double> v = SourceAt(f, wi, wo);
+      const double log_d = std::log(ndf.Eval(ux, uy));
+      for (int c = 0; c < 3; ++c)
+        if (v[c] > 0) {
+          l[c][y * vx + x] = std::log(v[c]) - log_d;
+          fc[c][y * vx + x] = v[c] * wo.z();
+          fc_max[c] = std::max(fc_max[c], fc[c][y * vx + x]);
+        }
+    }
+  std::vector<double> d(vy * vx, 0.0);
+  for (int c = 0; c < 3; ++c)
+    for (std::size_t i = 0; i < vy * vx; ++i) {
+      const std::size_t x = i % vx;
+      if (x == 0 || x + 1 == vx || !(fc[c][i] >= kSignificant * fc_max[c])) continue;
+      const double a = l[c][i - 1], m = l[c][i], b = l[c][i + 1];
+      if (std::isnan(a) || std::isnan(b)) continue;
+      const double d1 = (b - a) / (2 * h), d2 = (b - 2 * m + a) / (h * h);
+      d[i] = std::max(d[i], std::sqrt(std::abs(d2) + d1 * d1));
+    }
+  return d;
+}
+
 // An n x n table over the warped square, value(x, y) at node (x, y),
 // computed side by side; for an isotropic source (constant in the azimuth
 // of the square's y axis) row 0 only, copied to the others.
@@ -80,9 +132,8 @@ std::vector<T> SquareTable(std::size_t n, bool iso, const Value& value) {
 
 // One row of a slice's vndf (above): theta_i of the slice, phi the azimuth
 // of wm relative to wi's, gap the rest's (RestGap), lobe the row of the
-// visible normals times lobe_scale (a density over the square), n nodes.
-void AlignedRow(double theta_i, double phi, double gap, const double* lobe, double lobe_scale, std::size_t n,
-                float* out) {
+// visible normals (a density over the square), n nodes.
+void AlignedRow(double theta_i, double phi, double gap, const double* lobe, std::size_t n, float* out) {
   const double h = 1.0 / double(n - 1);
   // cos(theta_o) of the reflection of wi about wm = (theta, phi) is
   // r cos(2 theta - delta): one zero, at theta = (delta + pi / 2) / 2.
@@ -97,7 +148,7 @@ void AlignedRow(double theta_i, double phi, double gap, const double* lobe, doub
     const double dz = 2 * r * std::abs(std::sin(2 * theta - delta)) * kPi * ux / kHorizonBand;  // |dz / du_x|
     band[x] = kBandShare * std::exp(-z * z) * dz / std::sqrt(kPi);
     const double t = std::clamp((std::abs(cos_o) - gap) / gap, 0.0, 1.0), taper = t * t * (3 - 2 * t);
-    (x <= k ? left : right)[x] = (kLobeShare * lobe[x] * lobe_scale + kUniformShare) * taper;
+    (x <= k ? left : right)[x] = (kLobeShare * lobe[x] + kUniformShare) * taper;
   }
   // Integrals over [0, horizon] and over the row of the piecewise-linear density.
   auto integrals = [&](const std::vector<double>& v) {
@@ -258,11 +309,20 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
         lobe[y * vx + x] = q;
         mass += q * node_weight(x, vx) * node_weight(y, vy);
       }
+    // Where the values vary along a row, value columns as dense as their
+    // interpolation needs (ValueVariation): the lobe is raised to k d, so the
+    // rest there holds at least about 0.25 k d (its lobe share 0.35 times
+    // its scale, about 0.7), neighbouring value columns lie du <= 1 / (0.25
+    // k d (nx - 1)) apart, and the linear interpolation's relative error
+    // du^2 d^2 / 8 stays below kValueTolerance.
+    const double k = 1 / (0.25 * double(o.samples_theta - 1) * std::sqrt(8 * kValueTolerance));
+    const std::vector<double> variation = ValueVariation(f, ndf_table, wi, vy, vx);
+    for (std::size_t i = 0; i < vy * vx; ++i) lobe[i] = std::max(lobe[i] / mass, k * variation[i]);
     // Rows of anisotropic files are absolute azimuths of wm.
     const double gap = RestGap(theta_nodes[b], spacing);
     for (std::size_t y = 0; y < vy; ++y)
-      AlignedRow(theta_nodes[b], RB::UToPhi(double(y) / double(vy - 1)) - phi_i, gap, lobe.data() + y * vx, 1 / mass,
-                 vx, out + y * vx);
+      AlignedRow(theta_nodes[b], RB::UToPhi(double(y) / double(vy - 1)) - phi_i, gap, lobe.data() + y * vx, vx,
+                 out + y * vx);
   });
   const Warp2D vndf_warp(vndf, vy, vx, {phi_nodes, theta_nodes}, true);
 

@@ -29,7 +29,11 @@
 //     reaches 0.6 at the horizon. The values near the horizon are then one
 //     smooth function of s across rows and slices (theta_i, and phi_i in
 //     anisotropic files), which the bilinear and the slice interpolation
-//     follow;
+//     follow. Where the values f / D vary steeply along a row (sums of
+//     lobes, whose ndf learnt from the retro-reflection crosses from one
+//     lobe to the other elsewhere than f does), the visible normals are
+//     raised to a density that keeps the linear interpolation's relative
+//     error there near 0.15 %;
 //  4. rgb at the uniform N x M nodes s of each slice: wm = V(s), the warp of
 //     the float32 vndf as the reader builds it, wo the reflection of wi
 //     about wm, value = f(wi, wo) cos(theta_o) 4 sigma(wi) / D(wm) with
