@@ -12,6 +12,8 @@
 
 #include <tbb/parallel_for.h>
 
+#include "brdf/params.h"
+
 namespace brdfkit::formats {
 
 namespace {
@@ -196,7 +198,9 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
   const RglOptions o = WithDefaults(options);
   Check(o.theta_i >= 2 && o.theta_i <= 1024, "theta_i slices must be 2 to 1024");
   Check(o.phi_i == 0 || (o.phi_i >= 3 && o.phi_i <= 1024), "phi_i slices must be 0 (isotropic) or 3 to 1024");
-  Check(o.theta_max_deg > 0 && o.theta_max_deg < 90, "theta_max must be in (0, 90) degrees");
+  Check(o.theta_max_deg > 0 && o.theta_max_deg <= kRglThetaMaxDeg,
+        "theta_max must be in (0, " + FormatDouble(kRglThetaMaxDeg) + "] degrees, got " + FormatDouble(o.theta_max_deg) +
+            " (closer to grazing a slice has no room for the horizon's band and the rest)");
   const std::pair<const char*, int> resolutions[] = {
       {"ndf", o.ndf},         {"sigma", o.sigma},     {"vndf", o.vndf},
       {"vndf_theta", o.vndf_theta}, {"samples", o.samples}, {"samples_theta", o.samples_theta}};

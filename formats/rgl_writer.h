@@ -59,13 +59,19 @@ namespace brdfkit::formats {
 // f_r(wi, wo) in 1/sr per channel, unit directions in the upper hemisphere.
 using BrdfFunction = std::function<Rgb<double>(const Eigen::Vector3d& wi, const Eigen::Vector3d& wo)>;
 
+// The largest theta_max: beyond it a slice's rows (whose |cos(theta_o)|
+// stays below cos(theta_i)) leave no room for both the band around the
+// horizon and the rest, and the reconstruction fails (30-70 % errors
+// between 85 and 88-88.5 degrees, bench/RESULTS.md).
+constexpr double kRglThetaMaxDeg = 87.5;
+
 struct RglOptions {
   // Resolutions 0 are automatic (WithDefaults): isotropic files take the
   // resolution at which the reconstruction stays within 1 % (measured in
   // bench/RESULTS.md), anisotropic files, which store every table once per
   // phi_i slice, a coarser one.
   int theta_i = 0;           // incident elevation slices over [0, theta_max], denser toward grazing; 0: 80 isotropic, 32 anisotropic
-  double theta_max_deg = 87.5;
+  double theta_max_deg = kRglThetaMaxDeg;  // the last slice; (0, kRglThetaMaxDeg]
   int phi_i = 0;             // 0: isotropic; otherwise azimuth slices over [-pi, pi] (the last repeats the first)
   int ndf = 512;             // ndf resolution (square)
   int sigma = 64;            // sigma resolution (square)
