@@ -832,6 +832,36 @@ TEST(Fit, SumIsNeverWorseThanItsNestedSubSumsOnLargeTables) {
   }
 }
 
+// lambert+ggx+ggx data (900 samples, 5 % noise, the given seed) under the
+// cube-root metric (whose derivative spans many scales), every sample
+// prepared, and the engine over them: for tests of the solver's parts.
+struct CbrtProblem {
+  Model m = Model::Parse("lambert+ggx+ggx");
+  Dataset d;
+  Options o;
+  Prepared prep;
+  ModelEvaluators evaluators{m};
+  Engine e;
+  static Options CbrtOptions() {
+    Options o;
+    o.metric = Metric::kCbrt;
+    return o;
+  }
+  static Prepared All(const Dataset& d, const Options& o) {
+    std::vector<std::size_t> index(d.samples.size());
+    std::iota(index.begin(), index.end(), std::size_t(0));
+    return Prepare(d, index, o);
+  }
+  explicit CbrtProblem(std::uint64_t seed)
+      : d(Synthesise(m,
+                     ParseParams(m.Info(), "lambert.albedo=0.3:0.2:0.1,ggx.alpha=0.06,ggx.f0=0.9:0.7:0.5,ggx.weight=0.8,"
+                                           "ggx#2.alpha=0.4,ggx#2.f0=0.5:0.5:0.6,ggx#2.weight=0.3"),
+                     900, seed, 0.05)),
+        o(CbrtOptions()),
+        prep(All(d, o)),
+        e(evaluators, o, 1.0, MakeLayout(m.Info(), o)) {}
+};
+
 // The compressed residual blocks hand Ceres each chunk's cost, gradient
 // and normal matrix: against the same sums over the raw residuals and
 // their Jacobian (Engine::EvalJacobian, one block of all samples), under
@@ -839,23 +869,15 @@ TEST(Fit, SumIsNeverWorseThanItsNestedSubSumsOnLargeTables) {
 // lobe switched off (its width and Fresnel columns are zero, so most
 // chunks are rank-deficient).
 TEST(Fit, CompressedBlocksCarryTheCostGradientAndNormalMatrix) {
-  const Model m = Model::Parse("lambert+ggx+ggx");
-  const std::vector<double> truth = ParseParams(
-      m.Info(), "lambert.albedo=0.3:0.2:0.1,ggx.alpha=0.06,ggx.f0=0.9:0.7:0.5,ggx.weight=0.8,"
-                "ggx#2.alpha=0.4,ggx#2.f0=0.5:0.5:0.6,ggx#2.weight=0.3");
-  const Dataset d = Synthesise(m, truth, 900, 23, 0.05);
+  const CbrtProblem problem_data(23);
+  const Model& m = problem_data.m;
+  const Prepared& prep = problem_data.prep;
+  const Engine& e = problem_data.e;
   for (const char* at : {"ggx#2.weight=0.3", "ggx#2.weight=0"}) {
     SCOPED_TRACE(at);
     const std::vector<double> p = ParseParams(
         m.Info(), std::string("lambert.albedo=0.25:0.2:0.15,ggx.alpha=0.07,ggx.f0=0.8:0.7:0.6,ggx.weight=0.9,"
                               "ggx#2.alpha=0.3,ggx#2.f0=0.5:0.5:0.6,") + at);
-    Options o;
-    o.metric = Metric::kCbrt;
-    std::vector<std::size_t> index(d.samples.size());
-    std::iota(index.begin(), index.end(), std::size_t(0));
-    const Prepared prep = Prepare(d, index, o);
-    const ModelEvaluators evaluators(m);
-    const Engine e(evaluators, o, 1.0, MakeLayout(m.Info(), o));
     std::vector<double> u = e.ToInternal(p);
     const std::size_t n = e.n(), rows = 3 * prep.size();
     std::vector<double> r(rows), j(rows * n);
@@ -891,6 +913,42 @@ TEST(Fit, CompressedBlocksCarryTheCostGradientAndNormalMatrix) {
         EXPECT_NEAR((c.transpose() * c)(a, b) / scale, jtj(a, b) / scale, 1e-11) << a << ", " << b;
       }
   }
+}
+
+// A solve given a level (stop_above) stops at the first point whose cost
+// less kGainBound times its Gauss-Newton gain lies above it: from a level
+// below the optimum it stops early, and the optimum is indeed above the
+// level; from a level above the optimum it never stops and ends where the
+// solve without a level ends.
+TEST(Fit, SolveStopsWhereItsOptimumIsBoundedAboveALevel) {
+  const CbrtProblem problem_data(29);
+  const Model& m = problem_data.m;
+  const Engine& e = problem_data.e;
+  const std::vector<double> start = e.ToInternal(ParseParams(
+      m.Info(), "lambert.albedo=0.2,ggx.alpha=0.1,ggx.f0=0.6,ggx.weight=0.6,ggx#2.alpha=0.25,ggx#2.f0=0.6,"
+                "ggx#2.weight=0.5"));
+  const auto solve = [&](double level, int& points) {
+    std::vector<double> u = start;
+    points = 0;
+    const Solved r = SolveToEnd(e, problem_data.prep, 64, u, SolverOptions(problem_data.o, LinearSolver::kDenseQr, 200),
+                                nullptr,
+                                [&](int, double, const std::vector<double>&) { ++points; }, level);
+    return r;
+  };
+  int all = 0, below = 0, above = 0;
+  const Solved free = solve(std::numeric_limits<double>::infinity(), all);
+  ASSERT_TRUE(free.summary.IsSolutionUsable());
+  EXPECT_FALSE(free.bounded);
+  const double optimum = free.summary.final_cost;
+  const Solved low = solve(0.99 * optimum, below);
+  EXPECT_TRUE(low.bounded);
+  EXPECT_GE(all, 5);
+  EXPECT_LT(below, all);
+  EXPECT_GT(low.summary.final_cost, 0.99 * optimum);
+  const Solved high = solve(1.01 * optimum, above);
+  EXPECT_FALSE(high.bounded);
+  EXPECT_EQ(above, all);
+  EXPECT_EQ(high.summary.final_cost, optimum);
 }
 
 // A sum's Jacobian is taken lobe by lobe, each lobe on a Jet of its own

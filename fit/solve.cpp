@@ -1,6 +1,7 @@
 // The Ceres problem: residual blocks of chunks of samples over the engine,
 // bounds in the internal parameters, and the solver's settings.
 #include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
 
 #include <algorithm>
 #include <cctype>
@@ -412,9 +413,41 @@ Tail SecantTail(const Engine& e, const Prepared& d, std::size_t chunk, const Nor
 // Where a Levenberg-Marquardt solve has become linear (SolveToEnd).
 constexpr double kTailStart = 1e-4, kTailMinRatio = 0.1, kTailMaxRatio = 0.95;
 
+double GaussNewtonGain(const Eigen::MatrixXd& jtj, const Eigen::VectorXd& g) {
+  if (!jtj.allFinite() || !g.allFinite()) return std::numeric_limits<double>::infinity();
+  const Eigen::VectorXd scale = JacobiScale(jtj);
+  const Eigen::MatrixXd a = scale.asDiagonal() * jtj * scale.asDiagonal();
+  const Eigen::VectorXd b = scale.asDiagonal() * g;
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(a);
+  if (eig.info() != Eigen::Success) return std::numeric_limits<double>::infinity();
+  const double top = eig.eigenvalues().maxCoeff();
+  const Eigen::VectorXd proj = eig.eigenvectors().transpose() * b;
+  double gain = 0;
+  for (Eigen::Index k = 0; k < a.rows(); ++k) {
+    const double l = eig.eigenvalues()[k];
+    // Directions 1e-12 below the largest are the normal matrix's null
+    // space, where the gradient vanishes too (g = J^T r).
+    if (l > 1e-12 * top) gain += proj[k] * proj[k] / l;
+  }
+  return 0.5 * gain;
+}
+
+double GainWithinBounds(const Engine& e, const std::vector<double>& u, const Eigen::MatrixXd& jtj,
+                        const Eigen::VectorXd& g) {
+  std::vector<double> lo, hi;
+  Bounds(e.layout(), e.log_mask(), lo, hi);
+  std::vector<Eigen::Index> free;
+  for (std::size_t j = 0; j < u.size(); ++j) {
+    const Eigen::Index k = Eigen::Index(j);
+    const bool pressed = (u[j] <= lo[j] && g[k] > 0) || (u[j] >= hi[j] && g[k] < 0);
+    if (!pressed) free.push_back(k);
+  }
+  return GaussNewtonGain(jtj(free, free), g(free));
+}
+
 Solved SolveToEnd(const Engine& e, const Prepared& d, std::size_t chunk, std::vector<double>& u,
                   ceres::Solver::Options so, const NormalCache::Normal* from,
-                  const std::function<void(int, double, const std::vector<double>&)>& trace) {
+                  const std::function<void(int, double, const std::vector<double>&)>& trace, double stop_above) {
   ceres::Problem problem;
   NormalCache cache;
   BuildProblem(problem, e, d, chunk, u, &cache);
@@ -422,6 +455,10 @@ Solved SolveToEnd(const Engine& e, const Prepared& d, std::size_t chunk, std::ve
   // The successful iterations' costs and the normal equations at the last two.
   std::vector<double> costs;
   std::optional<NormalCache::Normal> previous, last;
+  Solved out;
+  const auto above = [&](double cost, const NormalCache::Normal& n) {
+    return std::isfinite(stop_above) && cost - kGainBound * GaussNewtonGain(n.jtj, n.jtr) > stop_above;
+  };
   TraceCallback callback(
       [&](const ceres::IterationSummary& it) {
         if (it.iteration > 0 && !it.step_is_successful) return;
@@ -432,6 +469,10 @@ Solved SolveToEnd(const Engine& e, const Prepared& d, std::size_t chunk, std::ve
         previous = std::move(last);
         last = cache.Last();
         costs.push_back(it.cost);
+        if (last && above(it.cost, *last)) {
+          out.bounded = true;
+          return true;
+        }
         const std::size_t k = costs.size();
         if (k < 4 || !previous || !last) return false;
         const auto decrease = [&](std::size_t j) { return costs[j - 1] - costs[j]; };
@@ -442,7 +483,6 @@ Solved SolveToEnd(const Engine& e, const Prepared& d, std::size_t chunk, std::ve
                steady(decrease(k - 2), decrease(k - 3));
       });
   so.callbacks.push_back(&callback);
-  Solved out;
   ceres::Solver::Summary& summary = out.summary;
   if (from) {
     summary.termination_type = ceres::USER_SUCCESS;
@@ -450,10 +490,17 @@ Solved SolveToEnd(const Engine& e, const Prepared& d, std::size_t chunk, std::ve
     costs.assign(1, CostOf(e, d, u));
     trace(0, costs[0], u);
     last = *from;
+    summary.final_cost = costs[0];
+    out.bounded = above(costs[0], *from);
   } else {
     ceres::Solve(so, &problem, &summary);
   }
   out.normal = cache.Last();
+  if (out.bounded) {
+    summary.message = "Stopped: the cost less " + FormatDouble(kGainBound) +
+                      " times the Gauss-Newton gain lies above " + FormatDouble(stop_above);
+    return out;
+  }
   if (summary.termination_type != ceres::USER_SUCCESS || !last) return out;
   const int done = summary.num_successful_steps + summary.num_unsuccessful_steps;
   const Tail t = SecantTail(e, d, chunk, *last, costs.back(), previous, so.function_tolerance,

@@ -26,6 +26,7 @@ struct Candidate {
   double cost = std::numeric_limits<double>::infinity();
   std::string origin;
   bool on_all = true;  // solved on all samples (else on the middle subset; cost on all samples)
+  bool bounded = false;  // its solve stopped where its optimum lay above the level it was to reach
 };
 
 // On large tables a sub-sum whose cost at its middle-subset optimum is more
@@ -34,14 +35,10 @@ struct Candidate {
 // cases (bench/RESULTS.md), and it is the most expensive step of a search.
 constexpr double kNestedMargin = 0.05;
 
-// A sub-sum is solved on all samples after the final solve only when its
-// cost less this multiple of the Gauss-Newton model's promised decrease
-// (GaussNewtonGain) falls below the sum's final cost. Gauss-Newton
-// underestimates the decrease of a problem with large residuals: where its
-// iterations converge linearly at rate rho the true quadratic model's
-// decrease is up to 1 / (1 - rho) times its own (rho = 0.35-0.7 in the
-// measured final solves); 20 covers rho up to 0.95.
-constexpr double kGainBound = 20;
+// A sub-sum is solved on all samples after the final solve only while its
+// cost less kGainBound times its Gauss-Newton gain stays below the sum's
+// final cost, at its start and at each step (SolveToEnd's stop_above):
+// beyond, its optimum cannot reach that cost.
 
 // A sub-sum's optimum on the middle subset lies within this of its optimum
 // on all samples (internal parameters, relative for widths and for values
@@ -209,17 +206,19 @@ void ClampToBounds(const Engine& e, std::vector<double>& u) {
 // One start: solves from internal parameters u (updated in place) over `d`
 // for at most `iterations`, traced as the next start under `stage`
 // (SolveToEnd; `from` as there).
-ceres::Solver::Summary SolveStart(const FitState& s, const Engine& e, const Prepared& d, std::vector<double>& u,
-                                  int iterations, double ftol, const std::string& stage,
-                                  const NormalCache::Normal* from = nullptr) {
+Solved SolveStart(const FitState& s, const Engine& e, const Prepared& d, std::vector<double>& u, int iterations,
+                  double ftol, const std::string& stage, const NormalCache::Normal* from = nullptr,
+                  double stop_above = std::numeric_limits<double>::infinity()) {
   ceres::Solver::Options so = SolverOptions(s.o, LinearSolver::kDenseQr, iterations);
   so.function_tolerance = ftol;
   const int start = ++s.res.starts;
-  return SolveToEnd(e, d, s.chunk, u, so, from, [&](int iteration, double cost, const std::vector<double>& at) {
-           // The plain engine has no robust loss.
-           s.res.trace.push_back({iteration, s.elapsed(), cost, RmseAt(e, d, at, cost, !s.sigma), start, stage});
-         })
-      .summary;
+  return SolveToEnd(
+      e, d, s.chunk, u, so, from,
+      [&](int iteration, double cost, const std::vector<double>& at) {
+        // The plain engine has no robust loss.
+        s.res.trace.push_back({iteration, s.elapsed(), cost, RmseAt(e, d, at, cost, !s.sigma), start, stage});
+      },
+      stop_above);
 }
 
 // Multi-start and nested sub-sums of a sum of lobes (Fit's start strategy).
@@ -346,7 +345,8 @@ class StartSearch {
   // After the final solve (user parameters p, their cost on all samples
   // without a robust loss: final_cost): each sub-sum with one lobe
   // removed that was not solved on all samples and whose cost there is
-  // within kNestedMargin of final_cost is solved on all samples now. When
+  // within kNestedMargin of final_cost is solved on all samples now, until
+  // its optimum is bounded above final_cost (Solve's stop_above). When
   // one ends below final_cost its parameters are returned for a new final
   // solve, so the sum is never worse than its sub-sums. A sub-sum whose
   // lobes the final solve left switched off, from a start (user parameters
@@ -376,12 +376,23 @@ class StartSearch {
         s_.res.local_optima.push_back({kid.cost, kid.p, "nested " + name + " (all samples, the final solve)"});
         continue;
       }
-      if (kid.cost - kGainBound * GaussNewtonGain(plain, kid.p) > final_cost) {
-        // The pass the bound took, traced at the sub-sum's cost there.
-        trace(kid.cost, kid.p, "bounded (all samples), not solved");
+      // The bound at the start, in one Jacobian pass (no solver set up).
+      {
+        Eigen::MatrixXd jtj;
+        Eigen::VectorXd g;
+        const std::vector<double> u = plain.ToInternal(kid.p);
+        NormalEquations(plain, full_, u, s_.chunk, jtj, g);
+        if (kid.cost - kGainBound * GainWithinBounds(plain, u, jtj, g) > final_cost) {
+          trace(kid.cost, kid.p, "bounded (all samples), not solved");
+          continue;
+        }
+      }
+      Candidate c = Solve(plain, full_, kid.p, o_.max_iterations, o_.function_tolerance, name + ": refine (all samples)",
+                          final_cost);
+      if (c.bounded) {
+        trace(c.cost, c.p, "bounded above the fit's cost (all samples), stopped");
         continue;
       }
-      Candidate c = Solve(plain, full_, kid.p, o_.max_iterations, o_.function_tolerance, name + ": refine (all samples)");
       if (c.cost <= kid.cost) kid = {c.p, c.cost, kid.origin, true};
       kid.on_all = true;
       s_.res.local_optima.push_back({kid.cost, kid.p, "nested " + name + " (all samples)"});
@@ -683,52 +694,35 @@ class StartSearch {
   // Cost of p on all samples.
   double FullCost(const Engine& e, const std::vector<double>& p) const { return CostOf(e, full_, e.ToInternal(p)); }
 
-  // The decrease of the cost on all samples that the Gauss-Newton model
-  // promises from p, without bounds (which can only lower it): g^T (J^T J)^+
-  // g / 2 with g = J^T r, on the Jacobi-scaled normal matrix; one Jacobian
-  // pass instead of a solve.
-  double GaussNewtonGain(const Engine& e, const std::vector<double>& p) const {
-    Eigen::MatrixXd jtj;
-    Eigen::VectorXd g;
-    NormalEquations(e, full_, e.ToInternal(p), s_.chunk, jtj, g);
-    if (!jtj.allFinite() || !g.allFinite()) return std::numeric_limits<double>::infinity();
-    const Eigen::Index n = jtj.rows();
-    const Eigen::VectorXd scale = JacobiScale(jtj);
-    const Eigen::MatrixXd a = scale.asDiagonal() * jtj * scale.asDiagonal();
-    const Eigen::VectorXd b = scale.asDiagonal() * g;
-    const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(a);
-    if (eig.info() != Eigen::Success) return std::numeric_limits<double>::infinity();
-    const double top = eig.eigenvalues().maxCoeff();
-    const Eigen::VectorXd proj = eig.eigenvectors().transpose() * b;
-    double gain = 0;
-    for (Eigen::Index k = 0; k < n; ++k) {
-      const double l = eig.eigenvalues()[k];
-      // Directions 1e-12 below the largest are the normal matrix's null
-      // space, where the gradient vanishes too (g = J^T r).
-      if (l > 1e-12 * top) gain += proj[k] * proj[k] / l;
-    }
-    return 0.5 * gain;
-  }
-
   // Solves from p over `d` for at most `iterations`; the solution is put in
-  // canonical order.
+  // canonical order. With a finite stop_above the solve stops where its
+  // optimum is bounded above stop_above (SolveToEnd), and the candidate is
+  // marked `bounded`.
   Candidate Solve(const Engine& e, const Prepared& d, const std::vector<double>& p, int iterations, double ftol,
-                  const std::string& stage) {
+                  const std::string& stage, double stop_above = std::numeric_limits<double>::infinity()) {
     std::vector<double> u = e.ToInternal(p);
     ClampToBounds(e, u);
     ceres::Solver::Summary summary;
+    bool bounded = false;
     const auto solve = [&](const Engine& en, std::vector<double>& v, const NormalCache::Normal* from) {
-      summary = SolveStart(s_, en, d, v, iterations, ftol, stage, from);
+      const Solved r = SolveStart(s_, en, d, v, iterations, ftol, stage, from, stop_above);
+      summary = r.summary;
+      bounded = r.bounded;
     };
     // Refinements (on all samples or the middle subset) hold the active
     // bounds: Ceres' bounded steps cost several Jacobian passes each (an l2
     // refinement on the middle subset took 2.3 s in 23 iterations).
+    // A solve that holds parameters on their bounds bounds its gain with
+    // them held; HoldingBounds takes its point for the whole problem's when
+    // no held parameter is pulled inward there, else solves on without
+    // holding them, and that solve's bound counts.
     if (&d != &subset_) HoldingBounds(evaluators_, plain_options_, 1.0, e, d, s_.chunk, u, solve);
     else solve(e, u, nullptr);
     Candidate c;
     if (!summary.IsSolutionUsable()) return c;
     c.p = e.ToUser(u);
     c.cost = summary.final_cost;
+    c.bounded = bounded;
     unsigned mask = 0;
     for (std::size_t k = 0; k < model_.LobeCount(); ++k)
       for (std::size_t q : SwitchSlots(model_, k))
@@ -852,7 +846,8 @@ Start RandomSearch(const FitState& s) {
     std::vector<double> u(lo.size());
     for (std::size_t j = 0; j < u.size(); ++j) u[j] = std::uniform_real_distribution<double>(from[j], to[j])(rng);
     const ceres::Solver::Summary summary = SolveStart(s, e, d, u, s.o.max_iterations, s.o.function_tolerance,
-                                                      "random start " + std::to_string(k) + " (" + where + ")");
+                                                      "random start " + std::to_string(k) + " (" + where + ")")
+                                               .summary;
     if (!summary.IsSolutionUsable()) continue;
     const double cost = middle ? CostOf(e, s.full, u) : summary.final_cost;
     if (std::isfinite(cost)) solved.emplace_back(cost, std::move(u));
@@ -881,7 +876,7 @@ std::vector<double> MultiStart(const FitState& s) {
     std::vector<double> u = s.plain.ToInternal(p);
     ClampToBounds(s.plain, u);
     const std::string stage = "start " + std::to_string(s.res.starts + 1) + " (subset)";
-    const ceres::Solver::Summary summary = SolveStart(s, s.plain, subset, u, s.o.start_iterations, 1e-8, stage);
+    const ceres::Solver::Summary summary = SolveStart(s, s.plain, subset, u, s.o.start_iterations, 1e-8, stage).summary;
     if (summary.IsSolutionUsable() && summary.final_cost < best_cost) {
       best_cost = summary.final_cost;
       best_u = u;
@@ -896,7 +891,7 @@ void RefineOnMiddle(const FitState& s, std::vector<double>& best_u) {
   const Prepared middle = Rows(s.full, SubsetIndex(s, MiddleSize(s.o)));
   std::vector<double> u = best_u;
   const ceres::Solver::Summary summary =
-      SolveStart(s, s.plain, middle, u, s.o.max_iterations, kMiddleTolerance, MiddleStage("", middle.size()));
+      SolveStart(s, s.plain, middle, u, s.o.max_iterations, kMiddleTolerance, MiddleStage("", middle.size())).summary;
   if (summary.IsSolutionUsable()) best_u = u;
 }
 
