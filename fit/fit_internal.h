@@ -428,8 +428,8 @@ Solved SolveToEnd(const Engine& e, const Prepared& d, std::size_t chunk, std::ve
 // where they are not finite.
 double GaussNewtonGain(const Eigen::MatrixXd& jtj, const Eigen::VectorXd& g);
 // The same at internal parameters u of engine e over the parameters that
-// HoldingBounds would leave free: those on a bound the gradient presses
-// against are held there.
+// HoldingBounds would leave free: those on a bound are held there unless
+// the gradient pulls them inward.
 double GainWithinBounds(const Engine& e, const std::vector<double>& u, const Eigen::MatrixXd& jtj,
                         const Eigen::VectorXd& g);
 // Gauss-Newton underestimates the decrease of a problem with large

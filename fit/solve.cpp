@@ -224,19 +224,27 @@ void BuildProblem(ceres::Problem& problem, const Engine& e, const Prepared& d, s
   }
 }
 
+namespace {
+// Whether internal parameter value v with bounds [lo, hi] and gradient
+// component g sits on a bound, and whether the descent direction -g pulls
+// it inward from there: HoldingBounds holds a parameter on a bound until
+// the gradient pulls it inward.
+bool OnBound(double v, double lo, double hi) { return v <= lo || v >= hi; }
+bool PulledInward(double v, double lo, double hi, double g) { return (v <= lo && g < 0) || (v >= hi && g > 0); }
+}  // namespace
+
 std::optional<NormalCache::Normal> HoldingBounds(const Evaluators& model, const Options& o, double loss_scale,
                                                  const Engine& engine, const Prepared& d, std::size_t chunk,
                                                  std::vector<double>& u,
                                                  const HeldSolve& solve) {
   std::vector<double> lo, hi;
   Bounds(engine.layout(), engine.log_mask(), lo, hi);
-  const auto at_bound = [&](std::size_t j) { return u[j] <= lo[j] || u[j] >= hi[j]; };
   const std::vector<double> p = engine.ToUser(u);
   std::vector<bool> held(u.size(), false);
   Layout inner = engine.layout();
   for (std::size_t k = 0; k < inner.free_of.size(); ++k) {
     const int j = inner.free_of[k];
-    if (j < 0 || !at_bound(std::size_t(j))) continue;
+    if (j < 0 || !OnBound(u[std::size_t(j)], lo[std::size_t(j)], hi[std::size_t(j)])) continue;
     held[std::size_t(j)] = true;
     inner.free_of[k] = -1;
     inner.value[k] = p[k];
@@ -254,8 +262,7 @@ std::optional<NormalCache::Normal> HoldingBounds(const Evaluators& model, const 
   NormalEquations(engine, d, u, chunk, normal.jtj, normal.jtr);
   const Eigen::VectorXd& g = normal.jtr;
   for (std::size_t j = 0; j < u.size(); ++j) {
-    const bool inward = (u[j] <= lo[j] && g[Eigen::Index(j)] < 0) || (u[j] >= hi[j] && g[Eigen::Index(j)] > 0);
-    if (held[j] && inward) {
+    if (held[j] && PulledInward(u[j], lo[j], hi[j], g[Eigen::Index(j)])) {
       solve(engine, u, &normal);
       return std::nullopt;
     }
@@ -437,11 +444,9 @@ double GainWithinBounds(const Engine& e, const std::vector<double>& u, const Eig
   std::vector<double> lo, hi;
   Bounds(e.layout(), e.log_mask(), lo, hi);
   std::vector<Eigen::Index> free;
-  for (std::size_t j = 0; j < u.size(); ++j) {
-    const Eigen::Index k = Eigen::Index(j);
-    const bool pressed = (u[j] <= lo[j] && g[k] > 0) || (u[j] >= hi[j] && g[k] < 0);
-    if (!pressed) free.push_back(k);
-  }
+  for (std::size_t j = 0; j < u.size(); ++j)
+    if (!OnBound(u[j], lo[j], hi[j]) || PulledInward(u[j], lo[j], hi[j], g[Eigen::Index(j)]))
+      free.push_back(Eigen::Index(j));
   return GaussNewtonGain(jtj(free, free), g(free));
 }
 

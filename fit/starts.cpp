@@ -35,11 +35,6 @@ struct Candidate {
 // cases (bench/RESULTS.md), and it is the most expensive step of a search.
 constexpr double kNestedMargin = 0.05;
 
-// A sub-sum is solved on all samples after the final solve only while its
-// cost less kGainBound times its Gauss-Newton gain stays below the sum's
-// final cost, at its start and at each step (SolveToEnd's stop_above):
-// beyond, its optimum cannot reach that cost.
-
 // A sub-sum's optimum on the middle subset lies within this of its optimum
 // on all samples (internal parameters, relative for widths and for values
 // above 1): 0.009 in the measured case (bench/RESULTS.md). A final solve
@@ -345,8 +340,10 @@ class StartSearch {
   // After the final solve (user parameters p, their cost on all samples
   // without a robust loss: final_cost): each sub-sum with one lobe
   // removed that was not solved on all samples and whose cost there is
-  // within kNestedMargin of final_cost is solved on all samples now, until
-  // its optimum is bounded above final_cost (Solve's stop_above). When
+  // within kNestedMargin of final_cost is solved on all samples now, while
+  // its cost less kGainBound times its Gauss-Newton gain stays below
+  // final_cost, at its start and after each step (Solve's stop_above):
+  // beyond, its optimum cannot reach final_cost. When
   // one ends below final_cost its parameters are returned for a new final
   // solve, so the sum is never worse than its sub-sums. A sub-sum whose
   // lobes the final solve left switched off, from a start (user parameters
