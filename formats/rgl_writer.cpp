@@ -26,7 +26,8 @@ constexpr double kNdfFloor = 1e-12;
 // pole to the equator). Every row holds the same mass, and within it a band
 // around the horizon of wo whose density in cos(theta_o) is the same in
 // every row and slice: kBandShare times a Gaussian of cos(theta_o) /
-// kHorizonBand. The rest (the visible normals, a kUniformShare of uniform
+// kHorizonBand (anisotropic files: a width that changes slowly with
+// theta_i, below). The rest (the visible normals, a kUniformShare of uniform
 // density for the pole and the rows facing away from wi) is zero within a
 // gap |cos(theta_o)| < w of the horizon (RestGap), rises smoothly to full
 // weight at 2 w, and is scaled on each side of the horizon so that the
@@ -38,6 +39,12 @@ constexpr double kNdfFloor = 1e-12;
 // linear across slices) follows f cos(theta_o) to it.
 constexpr double kVndfSpread = 0.2, kLobeShare = 0.35, kUniformShare = 0.5, kBandShare = 0.4, kHorizonBand = 0.2,
                  kBelowHorizon = 0.4;
+// The band's width in anisotropic files, whose neighbouring phi_i slices
+// (15.7 degrees apart by default) see a normal at cos(theta_o) up to
+// sin(theta_i) x their spacing (0.27 towards grazing) apart: cos(theta_i)
+// (the largest |cos(theta_o)| every row reaches), within kHorizonBand and
+// kAnisotropicBand.
+constexpr double kAnisotropicBand = 0.4;
 
 // The gap w of a slice at theta_i. At a query's horizon the cos(theta_o) of
 // the blended neighbours differ by up to the node spacing (|d cos(theta_o) /
@@ -135,7 +142,8 @@ std::vector<T> SquareTable(std::size_t n, bool iso, const Value& value) {
 // One row of a slice's vndf (above): theta_i of the slice, phi the azimuth
 // of wm relative to wi's, gap the rest's (RestGap), lobe the row of the
 // visible normals (a density over the square), n nodes.
-void AlignedRow(double theta_i, double phi, double gap, const double* lobe, std::size_t n, float* out) {
+void AlignedRow(double theta_i, double phi, double gap, double band_width, const double* lobe, std::size_t n,
+                float* out) {
   const double h = 1.0 / double(n - 1);
   // cos(theta_o) of the reflection of wi about wm = (theta, phi) is
   // r cos(2 theta - delta): one zero, at theta = (delta + pi / 2) / 2.
@@ -146,8 +154,8 @@ void AlignedRow(double theta_i, double phi, double gap, const double* lobe, std:
   std::vector<double> band(n), left(n, 0.0), right(n, 0.0);
   for (std::size_t x = 0; x < n; ++x) {
     const double ux = double(x) * h, theta = RglBsdf::UToTheta(ux);
-    const double cos_o = r * std::cos(2 * theta - delta), z = cos_o / kHorizonBand;
-    const double dz = 2 * r * std::abs(std::sin(2 * theta - delta)) * kPi * ux / kHorizonBand;  // |dz / du_x|
+    const double cos_o = r * std::cos(2 * theta - delta), z = cos_o / band_width;
+    const double dz = 2 * r * std::abs(std::sin(2 * theta - delta)) * kPi * ux / band_width;  // |dz / du_x|
     band[x] = kBandShare * std::exp(-z * z) * dz / std::sqrt(kPi);
     const double t = std::clamp((std::abs(cos_o) - gap) / gap, 0.0, 1.0), taper = t * t * (3 - 2 * t);
     (x <= k ? left : right)[x] = (kLobeShare * lobe[x] + kUniformShare) * taper;
@@ -324,8 +332,10 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
     for (std::size_t i = 0; i < vy * vx; ++i) lobe[i] = std::max(lobe[i] / mass, k * variation[i]);
     // Rows of anisotropic files are absolute azimuths of wm.
     const double gap = RestGap(theta_nodes[b], spacing);
+    const double band =
+        iso ? kHorizonBand : std::clamp(std::cos(double(theta_nodes[b])), kHorizonBand, kAnisotropicBand);
     for (std::size_t y = 0; y < vy; ++y)
-      AlignedRow(theta_nodes[b], RB::UToPhi(double(y) / double(vy - 1)) - phi_i, gap, lobe.data() + y * vx, vx,
+      AlignedRow(theta_nodes[b], RB::UToPhi(double(y) / double(vy - 1)) - phi_i, gap, band, lobe.data() + y * vx, vx,
                  out + y * vx);
   });
   const Warp2D vndf_warp(vndf, vy, vx, {phi_nodes, theta_nodes}, true);
