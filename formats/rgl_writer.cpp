@@ -140,8 +140,9 @@ std::vector<T> SquareTable(std::size_t n, bool iso, const Value& value) {
 }
 
 // One row of a slice's vndf (above): theta_i of the slice, phi the azimuth
-// of wm relative to wi's, gap the rest's (RestGap), lobe the row of the
-// visible normals (a density over the square), n nodes.
+// of wm relative to wi's, gap the rest's (RestGap), band_width the band's
+// (kHorizonBand, or in anisotropic files kAnisotropicBand's rule), lobe the
+// row of the visible normals (a density over the square), n nodes.
 void AlignedRow(double theta_i, double phi, double gap, double band_width, const double* lobe, std::size_t n,
                 float* out) {
   const double h = 1.0 / double(n - 1);
