@@ -1,0 +1,186 @@
+#!/usr/bin/env python3
+"""Checks tests/sanitizer_skips.txt: the tests the ASan/UBSan stage leaves out
+must run no line and no branch of brdfkit's sources that the tests it keeps do
+not run.
+
+It builds the suite with clang's source-based coverage in its own tree (no
+sanitizers, -O1), runs every test executable without the skipped tests (the
+kept set, as the sanitizer stage runs it) and then each skipped test alone,
+and compares the lines and branches of brdf/, validate/, data_synth/, fit/,
+formats/ and cli/ that each one reaches (llvm-cov's lcov export; the tests'
+own sources are not counted). Exit 0 when every skipped test is covered by the
+kept ones, 1 (with the lines it alone runs) otherwise, 2 on a usage or build
+error.
+
+  /usr/bin/python3 tests/sanitizer_skips_check.py [--tree build-coverage] [--jobs 2]
+
+About 25 minutes on 2 cores (the build, about 9, and the runs).
+"""
+import argparse
+import fnmatch
+import glob
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+SKIPS = os.path.join(ROOT, 'tests', 'sanitizer_skips.txt')
+EXECUTABLES = ['brdf_tests', 'validate_tests', 'data_synth_tests', 'fit_tests', 'formats_tests', 'cli_tests',
+               'tests_tests']
+LIBRARY_DIRS = ('brdf/', 'validate/', 'data_synth/', 'fit/', 'formats/', 'cli/')
+
+
+def fail(message):
+    print(message, file=sys.stderr)
+    sys.exit(2)
+
+
+def read_skips(path):
+    """Test names, one per line; '#' starts a comment."""
+    names = []
+    with open(path, encoding='utf-8') as f:
+        for number, line in enumerate(f, 1):
+            name = line.split('#', 1)[0].strip()
+            if name:
+                if ' ' in name:
+                    fail(f'{path}:{number}: one test name per line, got "{name}"')
+                names.append(name)
+    return names
+
+
+def tool(*names):
+    for n in names:
+        if shutil.which(n):
+            return n
+    fail(f'none of {", ".join(names)} found (Debian: apt-get install clang llvm)')
+
+
+def build(tree, jobs):
+    flags = '-fprofile-instr-generate -fcoverage-mapping'
+    subprocess.run(['cmake', '-S', ROOT, '-B', tree, '-DCMAKE_BUILD_TYPE=Release',
+                    f'-DCMAKE_CXX_COMPILER={tool("clang++", "clang++-14")}', '-DCMAKE_CXX_FLAGS_RELEASE=-O1 -DNDEBUG',
+                    f'-DCMAKE_CXX_FLAGS={flags}', '-DCMAKE_EXE_LINKER_FLAGS=-fprofile-instr-generate',
+                    '-DBRDFKIT_WERROR=OFF', '-DBRDFKIT_BUILD_BENCH=OFF', '-DBRDFKIT_INSTALL=OFF',
+                    '-DBRDFKIT_ROBUSTNESS_TESTS=OFF', '-DBRDFKIT_PYTHON=OFF'], check=True, stdout=subprocess.DEVNULL)
+    subprocess.run(['cmake', '--build', tree, '-j', str(jobs)], check=True, stdout=subprocess.DEVNULL)
+
+
+def gtest_names(exe):
+    out = subprocess.run([exe, '--gtest_list_tests'], check=True, capture_output=True, text=True).stdout
+    names, suite = set(), ''
+    for line in out.splitlines():
+        if not line.strip():
+            continue
+        if not line.startswith(' '):
+            suite = line.split()[0]
+        else:
+            names.add(suite + line.split()[0])
+    return names
+
+
+def run(cmd, profile_dir, cwd, cpu=None):
+    """Runs one command, its profiles (and its child processes') in profile_dir."""
+    os.makedirs(profile_dir, exist_ok=True)
+    env = dict(os.environ, LLVM_PROFILE_FILE=os.path.join(profile_dir, '%p-%m.profraw'))
+    # One core per skipped test: the coverage counters are shared by all
+    # threads, and several threads incrementing them slow a run tenfold.
+    if cpu is not None and shutil.which('taskset'):
+        cmd = ['taskset', '-c', str(cpu)] + cmd
+    r = subprocess.run(cmd, cwd=cwd, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    if r.returncode != 0:
+        fail(f'{" ".join(cmd)} failed (exit {r.returncode}):\n{r.stdout[-4000:]}')
+
+
+def coverage(profile_dir, objects):
+    """The (file, line) and (file, line, block, branch) pairs reached."""
+    raws = glob.glob(os.path.join(profile_dir, '*.profraw'))
+    if not raws:
+        fail(f'{profile_dir}: no profiles written')
+    data = profile_dir + '.profdata'
+    subprocess.run([tool('llvm-profdata', 'llvm-profdata-14'), 'merge', '-sparse', *raws, '-o', data], check=True)
+    args = [tool('llvm-cov', 'llvm-cov-14'), 'export', '-format=lcov', f'-instr-profile={data}', objects[0]]
+    for o in objects[1:]:
+        args += ['-object', o]
+    lcov = subprocess.run(args, check=True, capture_output=True, text=True).stdout
+    lines, branches, source = set(), set(), None
+    for line in lcov.splitlines():
+        if line.startswith('SF:'):
+            rel = os.path.relpath(line[3:], ROOT)
+            source = rel if rel.startswith(LIBRARY_DIRS) and '_test.' not in rel else None
+        elif source is None:
+            continue
+        elif line.startswith('DA:'):
+            number, count = line[3:].split(',')[:2]
+            if int(count) > 0:
+                lines.add((source, int(number)))
+        elif line.startswith('BRDA:'):
+            number, block, branch, count = line[5:].split(',')
+            if count not in ('-', '0'):
+                branches.add((source, int(number), block, branch))
+    return lines, branches
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('--tree', default=os.path.join(ROOT, 'build-coverage'))
+    parser.add_argument('--jobs', type=int, default=2)
+    args = parser.parse_args()
+    if not 1 <= args.jobs <= 256:
+        fail(f'--jobs: {args.jobs} is not between 1 and 256')
+    skips = read_skips(SKIPS)
+    build(args.tree, args.jobs)
+    tests_dir = os.path.join(args.tree, 'tests')
+    owner = {}
+    for exe in EXECUTABLES:
+        for name in gtest_names(os.path.join(tests_dir, exe)):
+            owner[name] = exe
+    def exe_of(pattern):  # GoogleTest names may be patterns ('Set/FitMaterial.*')
+        return next((owner[n] for n in sorted(owner) if fnmatch.fnmatchcase(n, pattern)), None)
+
+    ctest_skips = [s for s in skips if '.' not in s]
+    objects = [os.path.join(args.tree, 'brdfkit'), os.path.join(args.tree, 'brdfkit_extended')] + \
+              [os.path.join(tests_dir, e) for e in EXECUTABLES]
+    work = tempfile.mkdtemp(prefix='brdfkit-skips-')
+    negative = ':'.join(s for s in skips if '.' in s)
+    for exe in EXECUTABLES:
+        run([os.path.join(tests_dir, exe), f'--gtest_filter=-{negative}'], os.path.join(work, 'kept'), tests_dir)
+    # ctest-level stages the sanitizer tree runs and the list does not skip.
+    listed = subprocess.run(['ctest', '--test-dir', args.tree, '-N'], check=True, capture_output=True,
+                            text=True).stdout
+    for stage in ('browser_report_explorer',):
+        if stage in listed and stage not in ctest_skips:
+            run(['ctest', '--test-dir', args.tree, '-R', f'^{stage}$'], os.path.join(work, 'kept'), args.tree)
+    kept_lines, kept_branches = coverage(os.path.join(work, 'kept'), objects)
+    print(f'kept tests: {len(kept_lines)} lines, {len(kept_branches)} branches')
+    failed = False
+    for i, name in enumerate(skips):
+        profile = os.path.join(work, f'skip{i}')
+        if '.' in name and exe_of(name):
+            run([os.path.join(tests_dir, exe_of(name)), f'--gtest_filter={name}'], profile, tests_dir, cpu=0)
+        elif '.' not in name and name in listed:
+            run(['ctest', '--test-dir', args.tree, '-R', f'^{name}$'], profile, args.tree, cpu=0)
+        else:
+            fail(f'{SKIPS}: "{name}" is neither a test of {", ".join(EXECUTABLES)} nor a ctest stage')
+        lines, branches = coverage(profile, objects)
+        only_lines, only_branches = sorted(lines - kept_lines), sorted(branches - kept_branches)
+        if only_lines or only_branches:
+            failed = True
+            print(f'{name}: {len(only_lines)} lines and {len(only_branches)} branches no kept test runs:')
+            for source, number in only_lines[:20]:
+                print(f'  {source}:{number}')
+            for source, number, _, _ in only_branches[:20]:
+                print(f'  {source}:{number} (a branch)')
+        else:
+            print(f'{name}: covered by the kept tests ({len(lines)} lines, {len(branches)} branches)')
+    shutil.rmtree(work, ignore_errors=True)
+    return 1 if failed else 0
+
+
+if __name__ == '__main__':
+    try:
+        sys.exit(main())
+    except subprocess.CalledProcessError as e:
+        print(f'{" ".join(map(str, e.cmd))}: exit {e.returncode}', file=sys.stderr)
+        sys.exit(2)
