@@ -8,15 +8,17 @@ sanitizers, -O1), runs every test executable without the skipped tests (the
 kept set, as the sanitizer stage runs it) and then each skipped test alone,
 and compares the lines and branches of brdf/, validate/, data_synth/, fit/,
 formats/ and cli/ that each one reaches (llvm-cov's lcov export; the tests'
-own sources are not counted). Exit 0 when every skipped test is covered by the
-kept ones, 1 (with the lines it alone runs) otherwise, 2 on a usage or build
-error.
+own sources are not counted). Exit 0 when every test of the list's [covered]
+section is covered by the kept ones, 1 (with the lines it alone runs)
+otherwise, 2 on a usage or build error; for the [cost] section the code each
+alone runs is printed.
 
-  /usr/bin/python3 tests/sanitizer_skips_check.py [--tree build-coverage] [--jobs 2]
+  /usr/bin/python3 tests/sanitizer_skips_check.py [--tree build-coverage] [--jobs 2] [--list FILE]
 
 About 25 minutes on 2 cores (the build, about 9, and the runs).
 """
 import argparse
+import concurrent.futures
 import fnmatch
 import glob
 import os
@@ -38,15 +40,23 @@ def fail(message):
 
 
 def read_skips(path):
-    """Test names, one per line; '#' starts a comment."""
-    names = []
-    with open(path, encoding='utf-8') as f:
-        for number, line in enumerate(f, 1):
-            name = line.split('#', 1)[0].strip()
-            if name:
-                if ' ' in name:
-                    fail(f'{path}:{number}: one test name per line, got "{name}"')
-                names.append(name)
+    """(test name, section) pairs, one name per line; '#' starts a comment,
+    [covered] and [cost] start sections (names before any are [covered])."""
+    names, section = [], 'covered'
+    try:
+        with open(path, encoding='utf-8') as f:
+            for number, line in enumerate(f, 1):
+                name = line.split('#', 1)[0].strip()
+                if name.startswith('['):
+                    if name not in ('[covered]', '[cost]'):
+                        fail(f'{path}:{number}: unknown section {name} (sections: [covered], [cost])')
+                    section = name[1:-1]
+                elif name:
+                    if ' ' in name:
+                        fail(f'{path}:{number}: one test name per line, got "{name}"')
+                    names.append((name, section))
+    except OSError as e:
+        fail(f'{path}: {e.strerror}')
     return names
 
 
@@ -81,16 +91,19 @@ def gtest_names(exe):
 
 
 def run(cmd, profile_dir, cwd, cpu=None):
-    """Runs one command, its profiles (and its child processes') in profile_dir."""
+    """Runs one command, its profiles (and its child processes') in
+    profile_dir; returns an error message, or None."""
     os.makedirs(profile_dir, exist_ok=True)
     env = dict(os.environ, LLVM_PROFILE_FILE=os.path.join(profile_dir, '%p-%m.profraw'))
     # One core per skipped test: the coverage counters are shared by all
     # threads, and several threads incrementing them slow a run tenfold.
     if cpu is not None and shutil.which('taskset'):
         cmd = ['taskset', '-c', str(cpu)] + cmd
-    r = subprocess.run(cmd, cwd=cwd, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    r = subprocess.run(cmd, cwd=cwd, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                       stderr=subprocess.STDOUT, text=True)
     if r.returncode != 0:
-        fail(f'{" ".join(cmd)} failed (exit {r.returncode}):\n{r.stdout[-4000:]}')
+        return f'{" ".join(cmd)} failed (exit {r.returncode}):\n{r.stdout[-4000:]}'
+    return None
 
 
 def coverage(profile_dir, objects):
@@ -126,10 +139,12 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--tree', default=os.path.join(ROOT, 'build-coverage'))
     parser.add_argument('--jobs', type=int, default=2)
+    parser.add_argument('--list', default=SKIPS, help='the list to check (default tests/sanitizer_skips.txt)')
     args = parser.parse_args()
     if not 1 <= args.jobs <= 256:
         fail(f'--jobs: {args.jobs} is not between 1 and 256')
-    skips = read_skips(SKIPS)
+    sections = read_skips(args.list)
+    skips = [name for name, _ in sections]
     build(args.tree, args.jobs)
     tests_dir = os.path.join(args.tree, 'tests')
     owner = {}
@@ -145,29 +160,46 @@ def main():
     work = tempfile.mkdtemp(prefix='brdfkit-skips-')
     negative = ':'.join(s for s in skips if '.' in s)
     for exe in EXECUTABLES:
-        run([os.path.join(tests_dir, exe), f'--gtest_filter=-{negative}'], os.path.join(work, 'kept'), tests_dir)
+        error = run([os.path.join(tests_dir, exe), f'--gtest_filter=-{negative}'], os.path.join(work, 'kept'),
+                    tests_dir)
+        if error:
+            fail(error)
     # ctest-level stages the sanitizer tree runs and the list does not skip.
     listed = subprocess.run(['ctest', '--test-dir', args.tree, '-N'], check=True, capture_output=True,
                             text=True).stdout
     for stage in ('browser_report_explorer',):
         if stage in listed and stage not in ctest_skips:
-            run(['ctest', '--test-dir', args.tree, '-R', f'^{stage}$'], os.path.join(work, 'kept'), args.tree)
+            error = run(['ctest', '--test-dir', args.tree, '-R', f'^{stage}$'], os.path.join(work, 'kept'),
+                        args.tree)
+            if error:
+                fail(error)
     kept_lines, kept_branches = coverage(os.path.join(work, 'kept'), objects)
     print(f'kept tests: {len(kept_lines)} lines, {len(kept_branches)} branches')
+    commands = []
+    for i, name in enumerate(skips):
+        if '.' in name and exe_of(name):
+            commands.append(([os.path.join(tests_dir, exe_of(name)), f'--gtest_filter={name}'], tests_dir))
+        elif '.' not in name and name in listed:
+            commands.append((['ctest', '--test-dir', args.tree, '-R', f'^{name}$'], args.tree))
+        else:
+            fail(f'{args.list}: "{name}" is neither a test of {", ".join(EXECUTABLES)} nor a ctest stage')
+    # The listed tests run side by side, each on a core of its own.
+    cpus = sorted(os.sched_getaffinity(0))
+    cores = max(1, min(args.jobs, len(cpus)))
+    with concurrent.futures.ThreadPoolExecutor(cores) as pool:
+        errors = list(pool.map(lambda k: run(commands[k][0], os.path.join(work, f'skip{k}'), commands[k][1],
+                                             cpu=cpus[k % cores]), range(len(skips))))
+    for error in errors:
+        if error:
+            fail(error)
     failed = False
     for i, name in enumerate(skips):
-        profile = os.path.join(work, f'skip{i}')
-        if '.' in name and exe_of(name):
-            run([os.path.join(tests_dir, exe_of(name)), f'--gtest_filter={name}'], profile, tests_dir, cpu=0)
-        elif '.' not in name and name in listed:
-            run(['ctest', '--test-dir', args.tree, '-R', f'^{name}$'], profile, args.tree, cpu=0)
-        else:
-            fail(f'{SKIPS}: "{name}" is neither a test of {", ".join(EXECUTABLES)} nor a ctest stage')
-        lines, branches = coverage(profile, objects)
+        lines, branches = coverage(os.path.join(work, f'skip{i}'), objects)
         only_lines, only_branches = sorted(lines - kept_lines), sorted(branches - kept_branches)
         if only_lines or only_branches:
-            failed = True
-            print(f'{name}: {len(only_lines)} lines and {len(only_branches)} branches no kept test runs:')
+            failed = failed or sections[i][1] == 'covered'
+            print(f'{name} [{sections[i][1]}]: {len(only_lines)} lines and {len(only_branches)} branches no kept test '
+                  'runs:')
             for source, number in only_lines[:20]:
                 print(f'  {source}:{number}')
             for source, number, _, _ in only_branches[:20]:
