@@ -24,9 +24,10 @@ endif()
 # halt_on_error: the first finding fails its test; leaks are findings too.
 set(ENV{ASAN_OPTIONS} "halt_on_error=1:detect_leaks=1:abort_on_error=0")
 set(ENV{UBSAN_OPTIONS} "halt_on_error=1:print_stacktrace=1")
-# The tests tests/sanitizer_skips.txt names are left out: each runs no line
-# and no branch of brdfkit's sources that the tests run here do not
-# (tests/sanitizer_skips_check.py measures it). Names with a dot are
+# The tests tests/sanitizer_skips.txt names are left out: those of its
+# [covered] section run no line and no branch of brdfkit's sources that the
+# tests run here do not (tests/sanitizer_skips_check.py measures it), those
+# of its [cost] section are left out for their cost. Names with a dot are
 # GoogleTest names (patterns allowed), the rest ctest stages. The test
 # executables run in shards (gtest's own sharding, BRDFKIT_TEST_SHARDS),
 # which read the filter. install_consumer needs the install target, which
