@@ -50,6 +50,8 @@ class MerlTable {
   // c * kCells + Index(...). Negative values mark missing samples.
   std::vector<double> values = std::vector<double>(3 * kCells, -1.0);
 
+  MerlTable() = default;
+
   // Half/difference angles; phi_d unfolded in [-pi, pi].
   struct HalfDiff {
     double theta_h = 0, phi_h = 0, theta_d = 0, phi_d = 0;
@@ -215,8 +217,10 @@ class MerlTable {
   }
 
   // Throws std::runtime_error naming the file: missing file, a directory,
-  // wrong size, wrong header dimensions, non-finite values.
-  static MerlTable Read(const std::string& path) {
+  // wrong size, wrong header dimensions, non-finite values. `storage` holds
+  // the values when its capacity suffices (a caller may have asked the
+  // kernel for huge pages for it); its contents are overwritten.
+  static MerlTable Read(const std::string& path, std::vector<double> storage = {}) {
     namespace fs = std::filesystem;
     const std::string what = "MERL file '" + path + "'";
     std::error_code ec;
@@ -247,7 +251,7 @@ class MerlTable {
       throw std::runtime_error(what + " is " + (size < kFileSize ? "truncated" : "over-long") + ": " +
                                std::to_string(size) + " bytes, expected " + std::to_string(kFileSize) +
                                " (12-byte header + 3 x 90 x 90 x 180 float64)");
-    MerlTable t;
+    MerlTable t(std::move(storage));
     if (!in.read(reinterpret_cast<char*>(t.values.data()), std::streamsize(3 * kCells * sizeof(double))))
       throw std::runtime_error("cannot read " + what + ": read failed after the header");
     if constexpr (std::endian::native == std::endian::big)
@@ -364,6 +368,10 @@ class MerlTable {
   }
 
  private:
+  // A table of 3 x kCells zeros held in `storage`, whose memory is
+  // reused when its capacity suffices.
+  explicit MerlTable(std::vector<double>&& storage) : values(std::move(storage)) { values.resize(3 * kCells); }
+
   // h, theta_h and the difference vector d = (dx, dy, dz) of wi. d is
   // computed from (wi - wo) / 2, whose rotation into the half frame is
   // (dx, dy, 0) because wo is the mirror of wi about h, and dz = cos theta_d

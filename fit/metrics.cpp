@@ -2,10 +2,12 @@
 // targets and weights, and the RMSE and relative errors of a solution.
 #include <tbb/blocked_range.h>
 #include <tbb/info.h>
+#include <tbb/parallel_invoke.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <iterator>
 #include <span>
@@ -152,11 +154,11 @@ Prepared Rows(const Prepared& p, const std::vector<std::size_t>& rows) {
   auto own = std::make_shared<Dataset>();
   own->has_sigma = p.data->has_sigma;
   own->source = p.data->source;
-  own->samples.reserve(rows.size());
+  ReserveHuge(own->samples, rows.size());
   out.unit = p.unit;
   out.consecutive = true;  // its own rows, in order
-  out.index.reserve(rows.size());
-  out.target.reserve(rows.size());
+  ReserveHuge(out.index, rows.size());
+  ReserveHuge(out.target, rows.size());
   if (!p.w_fit.empty()) out.w_fit.reserve(rows.size());
   if (!p.w_metric.empty()) out.w_metric.reserve(rows.size());
   for (std::size_t q : rows) {
@@ -253,9 +255,11 @@ void RelativeErrors(const Engine& e, const Prepared& d, const std::vector<double
   // The floor keeps reference values near zero from dominating (as the relative metric).
   const Eigen::Array3d floor = (1e-3 * mean / double(std::max<std::size_t>(n, 1))).max(1e-300);
   constexpr std::size_t kBands = std::size(kThetaHBandEdgesDeg) - 1;
-  // Each sample's three errors and its theta_h band; the bands' errors are
-  // gathered one band at a time (the errors of a MERL table are 26 MB).
-  std::vector<double> all(3 * n);
+  // Each sample's three errors (26 MB for a MERL table, on huge pages) and
+  // its theta_h band.
+  std::vector<double> all;
+  ReserveHuge(all, 3 * n);
+  all.resize(3 * n);
   std::vector<std::uint8_t> band(n);
   static_assert(kBands <= 256, "a band number fits a byte");
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 256), [&](const tbb::blocked_range<std::size_t>& r) {
@@ -273,15 +277,28 @@ void RelativeErrors(const Engine& e, const Prepared& d, const std::vector<double
       }
     }
   });
+  // The errors again, grouped by band in one pass; the selections of the
+  // bands' statistics and of the overall ones (which reorder their
+  // elements) then run side by side.
+  std::array<std::size_t, kBands + 1> first{};
+  for (std::size_t q = 0; q < n; ++q) ++first[band[q] + 1];
+  for (std::size_t b = 0; b < kBands; ++b) first[b + 1] += first[b];
+  std::vector<double> grouped;
+  ReserveHuge(grouped, 3 * n);
+  grouped.resize(3 * n);
+  std::array<std::size_t, kBands> next;
+  std::copy_n(first.begin(), kBands, next.begin());
+  for (std::size_t q = 0; q < n; ++q) std::copy_n(all.begin() + std::ptrdiff_t(3 * q), 3, grouped.begin() + std::ptrdiff_t(3 * next[band[q]]++));
+  std::array<ErrorStats, kBands> stats;
+  tbb::parallel_invoke([&] { res.relative_error = StatsOf(all); },
+                       [&] {
+                         for (std::size_t b = 0; b < kBands; ++b)
+                           stats[b] = StatsOf(std::span<double>(grouped).subspan(3 * first[b], 3 * (first[b + 1] - first[b])));
+                       });
   res.relative_error_bands.clear();
-  for (std::size_t b = 0; b < kBands; ++b) {
-    std::vector<double> in;
-    for (std::size_t q = 0; q < n; ++q)
-      if (band[q] == b) in.insert(in.end(), all.begin() + std::ptrdiff_t(3 * q), all.begin() + std::ptrdiff_t(3 * q + 3));
-    if (!in.empty())
-      res.relative_error_bands.push_back({kThetaHBandEdgesDeg[b], kThetaHBandEdgesDeg[b + 1], StatsOf(in)});
-  }
-  res.relative_error = StatsOf(all);
+  for (std::size_t b = 0; b < kBands; ++b)
+    if (first[b + 1] > first[b])
+      res.relative_error_bands.push_back({kThetaHBandEdgesDeg[b], kThetaHBandEdgesDeg[b + 1], stats[b]});
 }
 
 double LossScale(const FitState& s, const std::vector<double>& u) {

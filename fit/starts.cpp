@@ -12,6 +12,7 @@
 #include <optional>
 #include <random>
 #include <stdexcept>
+#include <unordered_map>
 #include <utility>
 
 #include "fit/fit_internal.h"
@@ -747,17 +748,27 @@ class StartSearch {
 // A fixed pseudo-random choice of `count` of the samples used (positions in
 // s.full), so runs repeat.
 std::vector<std::size_t> SubsetIndex(const FitState& s, std::size_t count) {
-  std::vector<std::size_t> sub(s.full.size());
+  const std::size_t n = s.full.size();
+  std::vector<std::size_t> sub(std::min(n, count));
   std::iota(sub.begin(), sub.end(), std::size_t(0));
-  if (sub.size() > count) {
-    std::mt19937_64 rng(20050620);
-    for (std::size_t k = 0; k < count; ++k) {
-      std::uniform_int_distribution<std::size_t> pick(k, sub.size() - 1);
-      std::swap(sub[k], sub[pick(rng)]);
+  if (n <= count) return sub;
+  // The first `count` positions of a partial Fisher-Yates shuffle of 0 ..
+  // n - 1; the entries it moved beyond them are kept in a map, not in an
+  // array of all n (8.7 MB for a MERL file, faulted in on every call).
+  std::unordered_map<std::size_t, std::size_t> moved;
+  moved.reserve(count);
+  std::mt19937_64 rng(20050620);
+  for (std::size_t k = 0; k < count; ++k) {
+    std::uniform_int_distribution<std::size_t> pick(k, n - 1);
+    const std::size_t j = pick(rng);
+    if (j < count) {
+      std::swap(sub[k], sub[j]);
+    } else {
+      const auto it = moved.try_emplace(j, j).first;
+      std::swap(sub[k], it->second);
     }
-    sub.resize(count);
-    std::sort(sub.begin(), sub.end());
   }
+  std::sort(sub.begin(), sub.end());
   return sub;
 }
 
