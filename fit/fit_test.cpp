@@ -261,7 +261,9 @@ TEST(Fit, RelativeErrorsChiSquareAndModelMismatch) {
   const Model m = Model::Parse("lambert+ggx");
   for (bool with_sigma : {false, true}) {
     SCOPED_TRACE(with_sigma ? "sigma" : "no sigma");
-    Dataset d = Synthesise(truth_model, truth, 600, 5, 0.01, 1e-4);
+    // 5,000 samples: more than one of the blocks (4,096) in which the errors
+    // are grouped by band.
+    Dataset d = Synthesise(truth_model, truth, 5000, 5, 0.01, 1e-4);
     d.has_sigma = with_sigma;
     const Result r = Fit(m, d, Options{});
     // Independent: evaluate the fitted model at every sample.

@@ -2,7 +2,6 @@
 // targets and weights, and the RMSE and relative errors of a solution.
 #include <tbb/blocked_range.h>
 #include <tbb/info.h>
-#include <tbb/parallel_invoke.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
@@ -12,6 +11,7 @@
 #include <iterator>
 #include <span>
 #include <stdexcept>
+#include <utility>
 
 #include "fit/fit_internal.h"
 
@@ -255,50 +255,58 @@ void RelativeErrors(const Engine& e, const Prepared& d, const std::vector<double
   // The floor keeps reference values near zero from dominating (as the relative metric).
   const Eigen::Array3d floor = (1e-3 * mean / double(std::max<std::size_t>(n, 1))).max(1e-300);
   constexpr std::size_t kBands = std::size(kThetaHBandEdgesDeg) - 1;
-  // Each sample's three errors (26 MB for a MERL table, on huge pages) and
-  // its theta_h band.
-  std::vector<double> all;
-  ReserveHuge(all, 3 * n);
-  all.resize(3 * n);
-  std::vector<std::uint8_t> band(n);
+  // Each sample's theta_h band, counted block by block; then its three
+  // errors, written grouped by band (26 MB for a MERL table, on huge pages):
+  // a block's samples of band b go after those of band b in earlier blocks.
   static_assert(kBands <= 256, "a band number fits a byte");
-  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 256), [&](const tbb::blocked_range<std::size_t>& r) {
-    std::vector<double> pred(3 * r.size());
-    e.PredictRange(p, d, r.begin(), r.end(), pred.data());
-    for (std::size_t q = r.begin(); q < r.end(); ++q) {
+  constexpr std::size_t kBlock = 4096;
+  const std::size_t blocks = (n + kBlock - 1) / kBlock;
+  std::vector<std::uint8_t> band(n);
+  std::vector<std::array<std::size_t, kBands>> at(blocks);
+  tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t k) {
+    at[k].fill(0);
+    for (std::size_t q = k * kBlock; q < std::min(n, (k + 1) * kBlock); ++q) {
       const Eigen::Vector3d h = (d.Wi(q) + d.Wo(q)).normalized();
       const double theta_h = std::acos(std::clamp(h.z(), -1.0, 1.0)) * 180 / kPi;
       std::size_t b = 0;
       while (b + 1 < kBands && theta_h >= kThetaHBandEdgesDeg[b + 1]) ++b;
       band[q] = std::uint8_t(b);
-      for (int c = 0; c < 3; ++c) {
-        const double g = d.Reference(q)[c];
-        all[3 * q + std::size_t(c)] = std::abs(pred[3 * (q - r.begin()) + std::size_t(c)] - g) / std::max(std::abs(g), floor[c]);
-      }
+      ++at[k][b];
     }
   });
-  // The errors again, grouped by band in one pass; the selections of the
-  // bands' statistics and of the overall ones (which reorder their
-  // elements) then run side by side.
   std::array<std::size_t, kBands + 1> first{};
-  for (std::size_t q = 0; q < n; ++q) ++first[band[q] + 1];
-  for (std::size_t b = 0; b < kBands; ++b) first[b + 1] += first[b];
+  std::size_t next = 0;
+  for (std::size_t b = 0; b < kBands; ++b) {
+    first[b] = next;
+    for (std::size_t k = 0; k < blocks; ++k) next += std::exchange(at[k][b], next);
+  }
+  first[kBands] = next;
   std::vector<double> grouped;
   ReserveHuge(grouped, 3 * n);
   grouped.resize(3 * n);
-  std::array<std::size_t, kBands> next;
-  std::copy_n(first.begin(), kBands, next.begin());
-  for (std::size_t q = 0; q < n; ++q) std::copy_n(all.begin() + std::ptrdiff_t(3 * q), 3, grouped.begin() + std::ptrdiff_t(3 * next[band[q]]++));
+  tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t k) {
+    const std::size_t begin = k * kBlock, end = std::min(n, begin + kBlock);
+    std::vector<double> pred(3 * (end - begin));
+    e.PredictRange(p, d, begin, end, pred.data());
+    for (std::size_t q = begin; q < end; ++q) {
+      double* out = grouped.data() + 3 * at[k][band[q]]++;
+      for (int c = 0; c < 3; ++c) {
+        const double g = d.Reference(q)[c];
+        out[c] = std::abs(pred[3 * (q - begin) + std::size_t(c)] - g) / std::max(std::abs(g), floor[c]);
+      }
+    }
+  });
+  // The bands' selections reorder only within their bands, so the overall
+  // statistics follow over the same buffer.
   std::array<ErrorStats, kBands> stats;
-  tbb::parallel_invoke([&] { res.relative_error = StatsOf(all); },
-                       [&] {
-                         for (std::size_t b = 0; b < kBands; ++b)
-                           stats[b] = StatsOf(std::span<double>(grouped).subspan(3 * first[b], 3 * (first[b + 1] - first[b])));
-                       });
+  tbb::parallel_for(std::size_t{0}, kBands, [&](std::size_t b) {
+    stats[b] = StatsOf(std::span<double>(grouped).subspan(3 * first[b], 3 * (first[b + 1] - first[b])));
+  });
   res.relative_error_bands.clear();
   for (std::size_t b = 0; b < kBands; ++b)
     if (first[b + 1] > first[b])
       res.relative_error_bands.push_back({kThetaHBandEdgesDeg[b], kThetaHBandEdgesDeg[b + 1], stats[b]});
+  res.relative_error = StatsOf(grouped);
 }
 
 double LossScale(const FitState& s, const std::vector<double>& u) {
