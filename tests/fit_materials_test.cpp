@@ -88,6 +88,13 @@ Dataset Tabulate(const nlohmann::json& m, int stride) {
   return d;
 }
 
+// The material of the set with this name; null when there is none.
+const nlohmann::json* Material(const std::string& name) {
+  const nlohmann::json& set = Set()["materials"];
+  const auto it = std::find_if(set.begin(), set.end(), [&](const nlohmann::json& m) { return m["name"] == name; });
+  return it == set.end() ? nullptr : &*it;
+}
+
 std::string SumOf(int lobes) {
   const nlohmann::json& f = Set()["fits"];
   std::string spec = f["diffuse"];
@@ -185,10 +192,9 @@ TEST_P(FitMaterial, NestsAndReachesTheBruteForceOptimum) {
 // single lobe. The search must end there: at the cost of a local solve
 // started in that basin, below the nested fit's.
 TEST(FitMaterials, AFresnelShapingPairIsFound) {
-  const nlohmann::json& set = Set()["materials"];
-  const auto it = std::find_if(set.begin(), set.end(), [](const nlohmann::json& m) { return m["name"] == "beckmann_ggx_mixture"; });
-  ASSERT_NE(it, set.end());
-  const Dataset d = Tabulate(*it, 4);
+  const nlohmann::json* m = Material("beckmann_ggx_mixture");
+  ASSERT_NE(m, nullptr);
+  const Dataset d = Tabulate(*m, 4);
   Options o;
   o.metric = Metric::kCosine;
   o.covariance = false;
@@ -217,10 +223,9 @@ INSTANTIATE_TEST_SUITE_P(Set, FitMaterial, ::testing::Range<std::size_t>(0, Set(
 // than a solve from the alike point, in fewer iterations (that solve
 // creeps along the split of the copies' weights).
 TEST(FitMaterials, AStartThatFallsIntoASubSumYieldsToIt) {
-  const nlohmann::json& set = Set()["materials"];
-  const auto it = std::find_if(set.begin(), set.end(), [](const nlohmann::json& m) { return m["name"] == "rough_plastic_haze"; });
-  ASSERT_NE(it, set.end());
-  const Dataset d = Tabulate(*it, 3);
+  const nlohmann::json* m = Material("rough_plastic_haze");
+  ASSERT_NE(m, nullptr);
+  const Dataset d = Tabulate(*m, 3);
   Options o;
   o.metric = Metric::kRelative;
   o.covariance = false;
