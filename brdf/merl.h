@@ -104,10 +104,16 @@ class MerlTable {
   }
 
   static void FromHalfDiff(const HalfDiff& hd, Eigen::Vector3d& wi, Eigen::Vector3d& wo) {
-    const double st = std::sin(hd.theta_h), ct = std::cos(hd.theta_h);
-    const double sd = std::sin(hd.theta_d), cd = std::cos(hd.theta_d);
-    const double dx = sd * std::cos(hd.phi_d), dy = sd * std::sin(hd.phi_d);
-    const double cp = std::cos(hd.phi_h), sp = std::sin(hd.phi_h);
+    FromHalfDiffTrig(std::sin(hd.theta_h), std::cos(hd.theta_h), std::sin(hd.theta_d), std::cos(hd.theta_d),
+                     std::sin(hd.phi_d), std::cos(hd.phi_d), std::sin(hd.phi_h), std::cos(hd.phi_h), wi, wo);
+  }
+
+  // FromHalfDiff from the sines (s..) and cosines (c..) of theta_h (t),
+  // theta_d (d), phi_d (pd) and phi_h (p): for callers that convert many
+  // directions on one grid of angles.
+  static void FromHalfDiffTrig(double st, double ct, double sd, double cd, double spd, double cpd, double sp,
+                               double cp, Eigen::Vector3d& wi, Eigen::Vector3d& wo) {
+    const double dx = sd * cpd, dy = sd * spd;
     // wo is the mirror of wi about h: d_o = (-dx, -dy, dz) in the half frame.
     auto to_world = [&](double x, double y, double z) {
       const double xr = ct * x + st * z, zr = -st * x + ct * z;  // rotate by theta_h about the binormal

@@ -250,6 +250,36 @@ TEST(Fit, ReportedUncertaintyMatchesSpread) {
   }
 }
 
+// FromMerl: one sample per bin centre above the horizon with no missing
+// channel, in the table's order, at exactly BinDirections' directions and
+// with the table's values.
+TEST(Fit, MerlSamplesAreTheBinCentres) {
+  MerlTable t;
+  for (int c = 0; c < 3; ++c)
+    for (std::size_t n = 0; n < MerlTable::kCells; ++n)
+      t.values[std::size_t(c) * MerlTable::kCells + n] = n % 7 == 3 && c == 1 ? -1.0 : 0.01 * double(n % 100) + c;
+  const Dataset d = FromMerl(t);
+  std::size_t at = 0, missing = 0, wrong = 0;
+  for (int i = 0; i < MerlTable::kThetaH; ++i)
+    for (int j = 0; j < MerlTable::kThetaD; ++j)
+      for (int k = 0; k < MerlTable::kPhiD; ++k) {
+        const std::size_t n = MerlTable::Index(i, j, k);
+        Eigen::Vector3d wi, wo;
+        MerlTable::BinDirections(i, j, k, wi, wo);
+        if (n % 7 == 3 || !MerlTable::AboveHorizon(wi, wo)) {
+          ++missing;
+          continue;
+        }
+        ASSERT_LT(at, d.samples.size());
+        const Sample& s = d.samples[at++];
+        const Eigen::Array3d f(t.values[n], t.values[MerlTable::kCells + n], t.values[2 * MerlTable::kCells + n]);
+        wrong += s.wi != wi || s.wo != wo || (s.f != f).any() || (s.sigma != 0.0).any();
+      }
+  EXPECT_EQ(at, d.samples.size());
+  EXPECT_EQ(d.missing, missing);
+  EXPECT_EQ(wrong, 0u);
+}
+
 // The relative-error summary against an independent computation from the
 // fitted parameters; chi-square only with sigma, and a warning when the
 // residuals are far above the noise the data state (a single lobe fitted to
