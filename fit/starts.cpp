@@ -341,7 +341,7 @@ class StartSearch {
     // sub-sum's optimum is taken to lie in that sub-sum's basin, and the
     // sub-sum's optimum is kept: a solve from alike copies creeps along
     // their flat direction (the split of their switches), in the measured
-    // case 23 iterations on all samples against 8 (bench/RESULTS.md).
+    // case 23 iterations on all samples against 6 (bench/RESULTS.md).
     if (!best.nested && InSubSum(best.p, active, kids))
       for (const Candidate& c : optima)
         if (c.nested && c.cost <= best.cost * (1 + kSameBasin)) {
