@@ -85,6 +85,24 @@ std::string* MerlFile::path_ = nullptr;
 // REFERENCE.md: theta_h bin = floor(sqrt(theta_h / (pi/2)) 90), theta_d bin =
 // floor(theta_d / (pi/2) 90), phi_d bin = floor(phi_d / pi 180), clamped;
 // linear index phi_d + 180 (theta_d + 90 theta_h).
+// BinDirections (sines and cosines from tables of the centres' angles) is
+// HalfDiffToDirections of BinCentre (computed per bin), bit for bit, at
+// every bin.
+TEST(MerlIndex, BinDirectionsAreTheBinCentres) {
+  std::size_t wrong = 0;
+  for (int i = 0; i < Table::kThetaH; ++i)
+    for (int j = 0; j < Table::kThetaD; ++j)
+      for (int k = 0; k < Table::kPhiD; ++k) {
+        double th, td, pd;
+        Table::BinCentre(i, j, k, th, td, pd);
+        Eigen::Vector3d wi, wo, ti, to;
+        Table::HalfDiffToDirections(th, td, pd, wi, wo);
+        Table::BinDirections(i, j, k, ti, to);
+        wrong += ti != wi || to != wo;
+      }
+  EXPECT_EQ(wrong, 0u);
+}
+
 TEST(MerlIndex, MatchesReferenceFormulas) {
   EXPECT_EQ(Table::Index(0, 0, 1), 1u);
   EXPECT_EQ(Table::Index(0, 1, 0), 180u);

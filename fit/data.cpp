@@ -1,6 +1,5 @@
 // Datasets: samples from BRDF tables and measurement files.
 #include <algorithm>
-#include <array>
 #include <cmath>
 #include <cstdint>
 #include <filesystem>
@@ -85,27 +84,6 @@ Dataset FromMerl(const MerlTable& table, const std::string& source) {
   ReserveHuge(rows, kBlock * kRow);
   rows.resize(kBlock * kRow);
   std::vector<std::size_t> kept(kBlock, 0), missing(kBlock, 0);
-  // The sines and cosines of the bin centres' angles, each axis once
-  // (BinDirections computes eight per bin): the same directions.
-  using M = MerlTable;
-  std::array<double, M::kThetaH> s_h, c_h;
-  std::array<double, M::kThetaD> s_d, c_d;
-  std::array<double, M::kPhiD> s_p, c_p;
-  for (int n = 0; n < M::kPhiD; ++n) {
-    double th, td, pd;
-    M::BinCentre(std::min(n, M::kThetaH - 1), std::min(n, M::kThetaD - 1), n, th, td, pd);
-    const std::size_t q = std::size_t(n);
-    if (n < M::kThetaH) {
-      s_h[q] = std::sin(th);
-      c_h[q] = std::cos(th);
-    }
-    if (n < M::kThetaD) {
-      s_d[q] = std::sin(td);
-      c_d[q] = std::cos(td);
-    }
-    s_p[q] = std::sin(pd);
-    c_p[q] = std::cos(pd);
-  }
   for (int first = 0; first < MerlTable::kThetaH; first += kBlock) {
     const int count = std::min(kBlock, MerlTable::kThetaH - first);
     tbb::parallel_for(0, count, [&](int r) {
@@ -123,9 +101,7 @@ Dataset FromMerl(const MerlTable& table, const std::string& source) {
             s.f[c] = table.values[c * MerlTable::kCells + n];
             lost = lost || s.f[c] < 0;
           }
-          // phi_h = 0 (sine 0, cosine 1), as BinDirections.
-          M::FromHalfDiffTrig(s_h[std::size_t(i)], c_h[std::size_t(i)], s_d[std::size_t(j)], c_d[std::size_t(j)],
-                              s_p[std::size_t(k)], c_p[std::size_t(k)], 0.0, 1.0, s.wi, s.wo);
+          MerlTable::BinDirections(i, j, k, s.wi, s.wo);
           // A bin centre at or below the horizon is no reflectance sample.
           if (lost || !MerlTable::AboveHorizon(s.wi, s.wo)) {
             ++missing[std::size_t(r)];

@@ -251,8 +251,9 @@ TEST(Fit, ReportedUncertaintyMatchesSpread) {
 }
 
 // FromMerl: one sample per bin centre above the horizon with no missing
-// channel, in the table's order, at exactly BinDirections' directions and
-// with the table's values.
+// channel, in the table's order, at exactly the directions of the bin
+// centres' angles (BinCentre, HalfDiffToDirections: the sines and cosines
+// computed per bin) and with the table's values.
 TEST(Fit, MerlSamplesAreTheBinCentres) {
   MerlTable t;
   for (int c = 0; c < 3; ++c)
@@ -264,8 +265,10 @@ TEST(Fit, MerlSamplesAreTheBinCentres) {
     for (int j = 0; j < MerlTable::kThetaD; ++j)
       for (int k = 0; k < MerlTable::kPhiD; ++k) {
         const std::size_t n = MerlTable::Index(i, j, k);
+        double th, td, pd;
+        MerlTable::BinCentre(i, j, k, th, td, pd);
         Eigen::Vector3d wi, wo;
-        MerlTable::BinDirections(i, j, k, wi, wo);
+        MerlTable::HalfDiffToDirections(th, td, pd, wi, wo);
         if (n % 7 == 3 || !MerlTable::AboveHorizon(wi, wo)) {
           ++missing;
           continue;
