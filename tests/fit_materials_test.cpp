@@ -95,6 +95,16 @@ const nlohmann::json* Material(const std::string& name) {
   return it == set.end() ? nullptr : &*it;
 }
 
+// The options of the set's fits: metric m, no covariance, and a start
+// subset of `subset` samples (0: the default).
+Options SetOptions(Metric m, std::size_t subset = 0) {
+  Options o;
+  o.metric = m;
+  o.covariance = false;
+  if (subset > 0) o.start_subset = subset;
+  return o;
+}
+
 std::string SumOf(int lobes) {
   const nlohmann::json& f = Set()["fits"];
   std::string spec = f["diffuse"];
@@ -156,9 +166,7 @@ TEST_P(FitMaterial, NestsAndReachesTheBruteForceOptimum) {
   const Dataset d = Tabulate(m, 8);
   ASSERT_GT(d.samples.size(), 1000u);
   EXPECT_GT(d.missing, 0u);
-  Options o;
-  o.metric = fit::ParseMetric(metric);
-  o.covariance = false;
+  Options o = SetOptions(fit::ParseMetric(metric));
   o.num_threads = 1;
   double previous = std::numeric_limits<double>::infinity();
   for (int lobes = 1; lobes <= 3; ++lobes) {
@@ -195,9 +203,7 @@ TEST(FitMaterials, AFresnelShapingPairIsFound) {
   const nlohmann::json* m = Material("beckmann_ggx_mixture");
   ASSERT_NE(m, nullptr);
   const Dataset d = Tabulate(*m, 4);
-  Options o;
-  o.metric = Metric::kCosine;
-  o.covariance = false;
+  const Options o = SetOptions(Metric::kCosine);
   const Model two = Model::Parse(SumOf(2));
   const Result r = fit::Fit(two, d, o);
   // Independent: a local solve from a point of the pair's basin.
@@ -226,10 +232,7 @@ TEST(FitMaterials, AStartThatFallsIntoASubSumYieldsToIt) {
   const nlohmann::json* m = Material("rough_plastic_haze");
   ASSERT_NE(m, nullptr);
   const Dataset d = Tabulate(*m, 3);
-  Options o;
-  o.metric = Metric::kRelative;
-  o.covariance = false;
-  o.start_subset = 256;
+  const Options o = SetOptions(Metric::kRelative, 256);
   const Model three = Model::Parse(SumOf(3));
   const Result r = fit::Fit(three, d, o);
   ASSERT_GE(r.kept, 0);
@@ -268,10 +271,7 @@ TEST(FitMaterials, APeakSplitOffAfterTheFinalSolve) {
   const nlohmann::json* m = Material("gold");
   ASSERT_NE(m, nullptr);
   const Dataset d = Tabulate(*m, 2);
-  Options o;
-  o.metric = Metric::kL2;
-  o.covariance = false;
-  o.start_subset = 1024;
+  const Options o = SetOptions(Metric::kL2, 1024);
   const Model two = Model::Parse(SumOf(2));
   const Result r = fit::Fit(two, d, o);
   const Result one = fit::Fit(Model::Parse(SumOf(1)), d, o);
