@@ -482,11 +482,7 @@ class StartSearch {
       const std::vector<std::size_t> own = LobeSlots(model_, k), from = LobeSlots(model_, std::size_t(c)),
                                      sw = SwitchSlots(model_, k);
       const double wc = p[std::size_t(WidthSlot(model_, std::size_t(c)))];
-      std::size_t i = 0, at = 0;
-      while (at + (model_.Info().params[i].colour ? 3 : 1) <= std::size_t(ws))
-        at += model_.Info().params[i++].colour ? 3 : 1;
-      const std::vector<double> widths =
-          StartWidths(base_, std::size_t(ws), model_.Info().params[i].default_value, o_.starts_per_param);
+      const std::vector<double> widths = LobeStartWidths(std::size_t(ws), base_);
       if (widths.empty() || !(widths.front() < wc / 2)) continue;
       std::vector<double> seed = p;
       for (std::size_t j = 0; j < own.size(); ++j) {
@@ -497,10 +493,9 @@ class StartSearch {
       seeds.push_back(std::move(seed));
     }
     if (seeds.empty()) return std::nullopt;
-    const std::string name = ActiveSpec(0);
+    const std::string name = ActiveSpec(0), stage = name + ": a peak split off (all samples)";
     std::optional<Candidate> better;
     for (const std::vector<double>& seed : seeds) {
-      const std::string stage = name + ": a peak split off (all samples)";
       Candidate c = Solve(plain, full_, seed, kSplitLook, o_.function_tolerance, stage);
       if (!(c.cost < cost * (1 + kSplitAbove))) continue;
       c = Solve(plain, full_, c.p, kSplitIterations - kSplitLook, o_.function_tolerance, stage);
@@ -687,6 +682,12 @@ class StartSearch {
     });
   }
 
+  // The start widths of a lobe's width (packed slot ws) within layout's
+  // bounds, spaced around the parameter's default.
+  std::vector<double> LobeStartWidths(std::size_t ws, const Layout& layout) const {
+    return StartWidths(layout, ws, model_.Info().Defaults()[ws], o_.starts_per_param);
+  }
+
   // The sub-sum's optimum p (lobe k off) with lobe k switched back on at
   // each start width and at the width of each active copy of it (so that a
   // lobe can split in two), each with its other parameters at their
@@ -704,9 +705,7 @@ class StartSearch {
     std::vector<double> widths = {ws >= 0 ? p[std::size_t(ws)] : 0.0};
     std::vector<std::ptrdiff_t> copy_of(1, -1);  // the copy whose width widths[i] is; -1: a start width
     if (ws >= 0) {
-      std::size_t i = 0, off = 0;
-      while (off + (info.params[i].colour ? 3 : 1) <= std::size_t(ws)) off += info.params[i++].colour ? 3 : 1;
-      widths = StartWidths(layout, std::size_t(ws), info.params[i].default_value, o_.starts_per_param);
+      widths = LobeStartWidths(std::size_t(ws), layout);
       copy_of.assign(widths.size(), -1);
       for (std::size_t c = 0; c < model_.LobeCount(); ++c)
         if (c != k && model_.LobeInfo(c).name == model_.LobeInfo(k).name && WidthSlot(model_, c) >= 0 &&
