@@ -1051,11 +1051,14 @@ TEST(Fit, LobeByLobeJacobianMatchesCentralDifferences) {
   }
 }
 
-// A second specular lobe that does not pay on a large table (the outside
-// material, whose haze the one lobe and the diffuse term absorb): the final
+// A second specular lobe that the start search leaves off on a large table
+// (the outside material, whose haze the one lobe and the diffuse term
+// absorb in the search's basins): the final
 // solve starts from the nested sub-sum and leaves the lobe off, so it was
-// that sub-sum's solve on all samples and is not repeated; the sum ends
-// where the sub-sum fitted on its own ends.
+// that sub-sum's solve on all samples and is not repeated; the final
+// solve ends where the sub-sum fitted on its own ends. The lobe left off is
+// then tried as a Fresnel pair with the first (SplitPeak), which pays on
+// this table: 0.17 % lower under cbrt, 3.3 % under log.
 TEST(Fit, FinalSolveWithALobeOffIsTheSubSumsSolve) {
   const Dataset d = OutsideMaterial(6000, 37);
   for (Metric metric : {Metric::kCbrt, Metric::kLog}) {
@@ -1063,8 +1066,6 @@ TEST(Fit, FinalSolveWithALobeOffIsTheSubSumsSolve) {
     const Options o = LargeTableOptions(metric);
     const Result two = Fit(Model::Parse("lambert+ggx+ggx"), d, o);
     const Result alone = Fit(Model::Parse("lambert+ggx"), d, o);
-    EXPECT_EQ(two.params[12], 0.0);  // ggx#2.weight: the second lobe is off
-    EXPECT_NEAR(two.cost, alone.cost, 1e-9 * alone.cost);
     int by_final = 0, solved_again = 0;
     for (const TracePoint& t : two.trace) {
       by_final += t.stage == "lambert+ggx: solved by the final solve (all samples)";
@@ -1072,10 +1073,18 @@ TEST(Fit, FinalSolveWithALobeOffIsTheSubSumsSolve) {
     }
     EXPECT_EQ(by_final, 1);
     EXPECT_EQ(solved_again, 0);
+    // The final solve's point: the second lobe off (ggx#2.weight), the sub-sum's optimum.
     bool listed = false;
     for (const LocalOptimum& l : two.local_optima)
-      listed = listed || (l.origin == "nested lambert+ggx (all samples, the final solve)" && l.params == two.params);
+      listed = listed || (l.origin == "nested lambert+ggx (all samples, the final solve)" && l.params[12] == 0.0 &&
+                          std::abs(l.cost - alone.cost) <= 1e-9 * alone.cost);
     EXPECT_TRUE(listed);
+    // Then the second lobe as a Fresnel pair with the first ends lower.
+    EXPECT_LT(two.cost, alone.cost * (1 - 1e-3));
+    ASSERT_GE(two.kept, 0);
+    EXPECT_NE(two.local_optima[std::size_t(two.kept)].origin.find("a Fresnel pair split off after the final solve"),
+              std::string::npos)
+        << two.local_optima[std::size_t(two.kept)].origin;
   }
 }
 

@@ -84,6 +84,10 @@ constexpr double kSplitShare = 1e-3;
 constexpr double kSplitGain = 1e-6;
 constexpr double kSplitAbove = 1e-3;
 constexpr int kSplitLook = 3;
+// The Fresnel pair split off a copy starts at the fit's own point where it
+// shapes one channel (its two lobes reproduce the copy): it is given up
+// unless kPairLook iterations take it kSplitGain below the fit's cost.
+constexpr int kPairLook = 2;
 constexpr int kSplitIterations = 12;
 std::string MiddleStage(const std::string& name, std::size_t samples) {
   return (name.empty() ? "" : name + ": ") + "refine (" + std::to_string(samples) + " samples)";
@@ -439,7 +443,15 @@ class StartSearch {
   // rough_plastic_haze under l2 a copy of alpha 0.001-0.01 on the specular
   // peak lowers the cost on all samples by 1.5e-5 and 8.2e-4, where the
   // subset solves of the starts switch it off, and the middle subset's
-  // optimum lies in another basin (bench/RESULTS.md).
+  // optimum lies in another basin (bench/RESULTS.md). The lobe is also
+  // tried as a Fresnel pair with the copy (FresnelPair with the fit's point
+  // to reproduce: the copy's parameters, its colour channels inside their
+  // bounds at the lower bound in the lobe and the upper in the copy), which
+  // starts at the fit's own cost where one channel is shaped and is given
+  // up unless kPairLook iterations take it kSplitGain below: on he_plastic
+  // under log such a pair (red's Fresnel curve of its own) lowers the cost
+  // by 5.1e-5, where the start search's pair, every channel at its bounds,
+  // is switched off by its subset solve.
   std::optional<Candidate> SplitPeak(double cost, std::vector<double> p) {
     // The final solve's steps can leave a switch it turned off a rounding
     // error above 0 (2e-15 in the measured case): such a lobe is off.
@@ -463,7 +475,7 @@ class StartSearch {
             return true;
       return false;
     };
-    std::vector<std::vector<double>> seeds;
+    std::vector<std::pair<std::vector<double>, bool>> seeds;  // a seed and whether it is a Fresnel pair
     std::vector<std::string> done;  // lobes already split (copies give the same seeds)
     for (std::size_t k = 0; k < L; ++k) {
       const std::string& lobe = model_.LobeInfo(k).name;
@@ -482,25 +494,33 @@ class StartSearch {
       const std::vector<std::size_t> own = LobeSlots(model_, k), from = LobeSlots(model_, std::size_t(c)),
                                      sw = SwitchSlots(model_, k);
       const double wc = p[std::size_t(WidthSlot(model_, std::size_t(c)))];
+      std::vector<double> copy = p;
+      for (std::size_t j = 0; j < own.size(); ++j) copy[own[j]] = p[from[j]];
+      // The Fresnel pair of Seeded at the copy's width.
+      std::vector<double> pair = copy;
+      const std::vector<std::size_t> low = ColourSlots(k, base_);
+      for (std::size_t q : low) pair[q] = base_.lo[q];
+      if (!low.empty())
+        if (std::optional<std::vector<double>> seed = FresnelPair(plain, pair, k, std::size_t(c), low, base_, &p))
+          seeds.push_back({std::move(*seed), true});
       const std::vector<double> widths = LobeStartWidths(std::size_t(ws), base_);
       if (widths.empty() || !(widths.front() < wc / 2)) continue;
-      std::vector<double> seed = p;
-      for (std::size_t j = 0; j < own.size(); ++j) {
-        const bool is_switch = std::find(sw.begin(), sw.end(), own[j]) != sw.end();
-        seed[own[j]] = is_switch ? kSplitShare * p[from[j]] : p[from[j]];
-      }
-      seed[std::size_t(ws)] = widths.front();
-      seeds.push_back(std::move(seed));
+      for (std::size_t q : sw) copy[q] = kSplitShare * copy[q];
+      copy[std::size_t(ws)] = widths.front();
+      seeds.push_back({std::move(copy), false});
     }
     if (seeds.empty()) return std::nullopt;
-    const std::string name = ActiveSpec(0), stage = name + ": a peak split off (all samples)";
+    const std::string name = ActiveSpec(0);
     std::optional<Candidate> better;
-    for (const std::vector<double>& seed : seeds) {
-      Candidate c = Solve(plain, full_, seed, kSplitLook, o_.function_tolerance, stage);
-      if (!(c.cost < cost * (1 + kSplitAbove))) continue;
-      c = Solve(plain, full_, c.p, kSplitIterations - kSplitLook, o_.function_tolerance, stage);
-      if (!(c.cost < cost * (1 - kSplitGain)) || off(c.p) >= off(p) || alike(c.p)) continue;
-      c.origin = name + ": a peak split off after the final solve (all samples)";
+    for (const auto& [seed, pair] : seeds) {
+      const std::string what = pair ? "a Fresnel pair split off" : "a peak split off";
+      const std::string stage = name + ": " + what + " (all samples)";
+      const double level = cost * (1 - kSplitGain);
+      Candidate c = Solve(plain, full_, seed, pair ? kPairLook : kSplitLook, o_.function_tolerance, stage);
+      if (!(c.cost < (pair ? level : cost * (1 + kSplitAbove)))) continue;
+      c = Solve(plain, full_, c.p, kSplitIterations - (pair ? kPairLook : kSplitLook), o_.function_tolerance, stage);
+      if (!(c.cost < level) || off(c.p) >= off(p) || alike(c.p)) continue;
+      c.origin = name + ": " + what + " after the final solve (all samples)";
       s_.res.local_optima.push_back({c.cost, c.p, c.origin});
       if (!better || c.cost < better->cost) better = std::move(c);
     }
@@ -716,13 +736,8 @@ class StartSearch {
         }
     }
     const std::vector<std::size_t> sw = SwitchSlots(model_, k);
-    // Linear colour slots of lobe k, not switches, free, whose lower bound differs from the default.
     const std::vector<double> defaults = info.Defaults();
-    std::vector<std::size_t> low;
-    for (std::size_t q : LobeSlots(model_, k))
-      if (channel_[q] >= 0 && !log_scale_[q] && std::find(sw.begin(), sw.end(), q) == sw.end() &&
-          layout.free_of[q] >= 0 && layout.leader[q] < 0 && layout.lo[q] != defaults[q])
-        low.push_back(q);
+    const std::vector<std::size_t> low = ColourSlots(k, layout);
     // The sub-sum's prediction and residual on the subset, the same for every seed.
     std::vector<Eigen::Array3d> base(subset_.size());
     for (std::size_t q = 0; q < subset_.size(); ++q) base[q] = e.Predict(p, subset_, q);
@@ -758,22 +773,50 @@ class StartSearch {
     return out;
   }
 
+  // Linear colour slots of lobe k, not switches, free, whose lower bound differs from the default.
+  std::vector<std::size_t> ColourSlots(std::size_t k, const Layout& layout) const {
+    const std::vector<std::size_t> sw = SwitchSlots(model_, k);
+    const std::vector<double> defaults = model_.Info().Defaults();
+    std::vector<std::size_t> low;
+    for (std::size_t q : LobeSlots(model_, k))
+      if (channel_[q] >= 0 && !log_scale_[q] && std::find(sw.begin(), sw.end(), q) == sw.end() &&
+          layout.free_of[q] >= 0 && layout.leader[q] < 0 && layout.lo[q] != defaults[q])
+        low.push_back(q);
+    return low;
+  }
+
   // The pair seed of Seeded: `on` with lobe k at its lower bounds (slots
   // `low`), copy c's matching slots at their upper bounds, and the two
   // lobes' switches scaled together by least squares to the residual of the
-  // rest of the sum.
-  // Nothing when c's slots do not match k's, are not free, or the lobes
-  // have no one weight each.
+  // rest of the sum. With a point to `reproduce` (SplitPeak: the fit's,
+  // where k is off and `on` holds c's parameters in k), channels c holds at
+  // a bound stay there in both lobes, and the switches are scaled to
+  // reproduce that point's prediction instead: with one channel shaped
+  // (Schlick's f0 + (1 - f0) (1 - cos)^5 is linear in f0) the pair then
+  // is the fit's own point, and any step from it gains.
+  // Nothing when c's slots do not match k's, are not free, no channel is
+  // shaped, or the lobes have no one weight each.
   std::optional<std::vector<double>> FresnelPair(const Engine& e, std::vector<double> on, std::size_t k, std::size_t c,
-                                                 const std::vector<std::size_t>& low, const Layout& layout) const {
+                                                 const std::vector<std::size_t>& low, const Layout& layout,
+                                                 const std::vector<double>* reproduce = nullptr) const {
     const std::vector<std::size_t> sk = SwitchSlots(model_, k), sc = SwitchSlots(model_, c);
     if (sk.size() != 1 || sc.size() != 1 || channel_[sk[0]] >= 0) return std::nullopt;
     const std::size_t from_k = model_.LobeOffset(k), from_c = model_.LobeOffset(c);
+    bool shaped = false;
     for (std::size_t q : low) {
       const std::size_t qc = q - from_k + from_c;
       if (layout.free_of[qc] < 0 || layout.leader[qc] >= 0) return std::nullopt;
+      // A channel the copy holds at a bound wants a curve beyond the pair's
+      // (flatter at the upper, steeper at the lower): lobe k joins the copy there.
+      const double tol = 1e-9 * (layout.hi[qc] - layout.lo[qc]);
+      if (reproduce && (on[qc] >= layout.hi[qc] - tol || on[qc] <= layout.lo[qc] + tol)) {
+        on[q] = std::clamp(on[qc], layout.lo[q], layout.hi[q]);
+        continue;
+      }
       on[qc] = layout.hi[qc];
+      shaped = true;
     }
+    if (!shaped) return std::nullopt;
     // The prediction with both lobes off, and each lobe's part at its switch's value.
     std::vector<double> off = on;
     off[sk[0]] = off[sc[0]] = 0;
@@ -785,7 +828,7 @@ class StartSearch {
     for (std::size_t q = 0; q < subset_.size(); ++q) {
       const Eigen::Array3d rest = e.Predict(off, subset_, q);
       const Eigen::Array3d gk = e.Predict(only_k, subset_, q) - rest, gc = e.Predict(only_c, subset_, q) - rest;
-      const Eigen::Array3d r = subset_.Reference(q) - rest;
+      const Eigen::Array3d r = (reproduce ? e.Predict(*reproduce, subset_, q) : subset_.Reference(q)) - rest;
       a(0, 0) += (gk * gk).sum();
       a(0, 1) += (gk * gc).sum();
       a(1, 1) += (gc * gc).sum();
