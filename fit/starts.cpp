@@ -502,9 +502,8 @@ class StartSearch {
       std::vector<double> pair = copy;
       const std::vector<std::size_t> low = ColourSlots(k, base_);
       for (std::size_t q : low) pair[q] = base_.lo[q];
-      if (!low.empty())
-        if (std::optional<std::vector<double>> seed = FresnelPair(plain, pair, k, std::size_t(c), low, base_, &p))
-          seeds.push_back({std::move(*seed), true});
+      if (std::optional<std::vector<double>> seed = FresnelPair(plain, pair, k, std::size_t(c), low, base_, &p))
+        seeds.push_back({std::move(*seed), true});
       const std::vector<double> widths = LobeStartWidths(std::size_t(ws), base_);
       if (widths.empty() || !(widths.front() < wc / 2)) continue;
       for (std::size_t q : sw) copy[q] = kSplitShare * copy[q];
@@ -513,14 +512,15 @@ class StartSearch {
     }
     if (seeds.empty()) return std::nullopt;
     const std::string name = ActiveSpec(0);
+    const double level = cost * (1 - kSplitGain);
     std::optional<Candidate> better;
     for (const auto& [seed, pair] : seeds) {
       const std::string what = pair ? "a Fresnel pair split off" : "a peak split off";
       const std::string stage = name + ": " + what + " (all samples)";
-      const double level = cost * (1 - kSplitGain);
-      Candidate c = Solve(plain, full_, seed, pair ? kPairLook : kSplitLook, o_.function_tolerance, stage);
+      const int look = pair ? kPairLook : kSplitLook;
+      Candidate c = Solve(plain, full_, seed, look, o_.function_tolerance, stage);
       if (!(c.cost < (pair ? level : cost * (1 + kSplitAbove)))) continue;
-      c = Solve(plain, full_, c.p, kSplitIterations - (pair ? kPairLook : kSplitLook), o_.function_tolerance, stage);
+      c = Solve(plain, full_, c.p, kSplitIterations - look, o_.function_tolerance, stage);
       if (!(c.cost < level) || off(c.p) > off(p) || alike(c.p)) continue;
       c.origin = name + ": " + what + " after the final solve (all samples)";
       s_.res.local_optima.push_back({c.cost, c.p, c.origin});
