@@ -500,12 +500,15 @@ class StartSearch {
       if (!untouched_[k] || ws < 0 || !SwitchedOff(1u << k, p) ||
           std::find(done.begin(), done.end(), lobe) != done.end())
         continue;
-      // The narrowest active copy.
+      // The narrowest active copy, and the widest one's width.
       std::ptrdiff_t c = -1;
+      double widest = 0;
       for (std::size_t b = 0; b < L; ++b)
-        if (b != k && untouched_[b] && model_.LobeInfo(b).name == lobe && !SwitchedOff(1u << b, p) &&
-            (c < 0 || p[std::size_t(WidthSlot(model_, b))] < p[std::size_t(WidthSlot(model_, std::size_t(c)))]))
-          c = std::ptrdiff_t(b);
+        if (b != k && untouched_[b] && model_.LobeInfo(b).name == lobe && !SwitchedOff(1u << b, p)) {
+          const double wb = p[std::size_t(WidthSlot(model_, b))];
+          if (c < 0 || wb < p[std::size_t(WidthSlot(model_, std::size_t(c)))]) c = std::ptrdiff_t(b);
+          widest = std::max(widest, wb);
+        }
       if (c < 0) continue;
       done.push_back(lobe);
       const std::vector<std::size_t> own = LobeSlots(model_, k), from = LobeSlots(model_, std::size_t(c)),
@@ -525,10 +528,6 @@ class StartSearch {
       // above twice the widest copy's, the lobe's other parameters at their
       // defaults (a Schlick f0 of 1: no Fresnel shaping), its switch
       // kSplitShare of the copy's.
-      double widest = 0;
-      for (std::size_t b = 0; b < L; ++b)
-        if (untouched_[b] && model_.LobeInfo(b).name == lobe && !SwitchedOff(1u << b, p))
-          widest = std::max(widest, p[std::size_t(WidthSlot(model_, b))]);
       if (widths.back() > 2 * widest) {
         std::vector<double> wide = p;
         const std::vector<double> defaults = model_.Info().Defaults();
