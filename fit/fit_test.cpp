@@ -1122,6 +1122,28 @@ TEST(Fit, TwoLobeTruthIsRecovered) {
   ExpectRecovered(r2, truth, 1e-4);
 }
 
+// A haze brighter than one lobe's weight bound (10): 16 times a GGX lobe
+// of f0 0.04 beside a peak, which one copy cannot express (weight 1.6 with
+// f0 0.4 rises less towards grazing). Two alike copies whose weights add up
+// to 16 do; they are not a sub-sum, and the fit finds them.
+TEST(Fit, ALobeBeyondTheWeightBoundIsTwoAlikeCopies) {
+  const Model m = Model::Parse("lambert+ggx+ggx+ggx");
+  const std::vector<double> truth = ParseParams(
+      m.Info(), "lambert.albedo=0.3:0.2:0.1,ggx.alpha=0.05,ggx.f0=0.9:0.7:0.5,ggx.weight=1,"
+                "ggx#2.alpha=0.4,ggx#2.f0=0.04,ggx#2.weight=10,ggx#3.alpha=0.4,ggx#3.f0=0.04,ggx#3.weight=6");
+  const Dataset d = Synthesise(m, truth, 600, 23);
+  Options o;
+  o.covariance = false;
+  const Result r = Fit(m, d, o);
+  ASSERT_GE(r.kept, 0);
+  EXPECT_LT(r.rmse, 1e-7) << r.local_optima[std::size_t(r.kept)].origin;
+  for (const std::size_t k : {8, 13}) EXPECT_NEAR(r.params[k], 0.4, 1e-6) << r.packed_names[k];
+  for (const std::size_t k : {9, 10, 11, 14, 15, 16}) EXPECT_NEAR(r.params[k], 0.04, 1e-6) << r.packed_names[k];
+  EXPECT_NEAR(r.params[12] + r.params[17], 16.0, 1e-5);
+  EXPECT_NEAR(r.params[7], 1.0, 1e-6);
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(r.params[std::size_t(c)], truth[std::size_t(c)], 1e-6);
+}
+
 TEST(Fit, FixedParameterIsHeldAndTheRestRecovered) {
   const Model m = Model::Parse("lambert+ggx");
   const std::vector<double> truth = ParseParams(m.Info(), "lambert.albedo=0.4:0.3:0.2,ggx.alpha=0.12,ggx.f0=0.04");
