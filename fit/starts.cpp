@@ -514,10 +514,17 @@ class StartSearch {
       const std::vector<std::size_t> own = LobeSlots(model_, k), from = LobeSlots(model_, std::size_t(c)),
                                      sw = SwitchSlots(model_, k);
       const double wc = p[std::size_t(WidthSlot(model_, std::size_t(c)))];
-      std::vector<double> copy = p;
-      for (std::size_t j = 0; j < own.size(); ++j) copy[own[j]] = p[from[j]];
+      // p with lobe k a copy of active copy b, its switches kSplitShare of b's.
+      const auto beside = [&](std::size_t b) {
+        std::vector<double> x = p;
+        const std::vector<std::size_t> at = LobeSlots(model_, b);
+        for (std::size_t j = 0; j < own.size(); ++j)
+          x[own[j]] = (std::find(sw.begin(), sw.end(), own[j]) != sw.end() ? kSplitShare : 1.0) * p[at[j]];
+        return x;
+      };
       // The Fresnel pair of Seeded at the copy's width.
-      std::vector<double> pair = copy;
+      std::vector<double> pair = p;
+      for (std::size_t j = 0; j < own.size(); ++j) pair[own[j]] = p[from[j]];
       const std::vector<std::size_t> low = ColourSlots(k, base_);
       for (std::size_t q : low) pair[q] = base_.lo[q];
       if (std::optional<std::vector<double>> seed = FresnelPair(plain, pair, k, std::size_t(c), low, base_, &p))
@@ -527,15 +534,12 @@ class StartSearch {
       // switches; the cost falls along them (the bound holds the copy).
       for (std::size_t b = 0; b < L; ++b) {
         if (b == k || !untouched_[b] || model_.LobeInfo(b).name != lobe || SwitchedOff(1u << b, p)) continue;
-        const std::vector<std::size_t> at = LobeSlots(model_, b), bsw = SwitchSlots(model_, b);
+        const std::vector<std::size_t> bsw = SwitchSlots(model_, b);
         if (std::none_of(bsw.begin(), bsw.end(), [&](std::size_t q) {
               return base_.free_of[q] >= 0 && p[q] >= base_.hi[q];
             }))
           continue;
-        std::vector<double> beside = p;
-        for (std::size_t j = 0; j < own.size(); ++j)
-          beside[own[j]] = std::find(sw.begin(), sw.end(), own[j]) != sw.end() ? kSplitShare * p[at[j]] : p[at[j]];
-        seeds.push_back({std::move(beside), true, "a copy split off beside one at its bound"});
+        seeds.push_back({beside(b), true, "a copy split off beside one at its bound"});
         break;
       }
       const std::vector<double> widths = LobeStartWidths(std::size_t(ws), base_);
@@ -554,9 +558,9 @@ class StartSearch {
         seeds.push_back({std::move(wide), true, "a wide lobe split off", sw});
       }
       if (!(widths.front() < wc / 2)) continue;
-      for (std::size_t q : sw) copy[q] = kSplitShare * copy[q];
-      copy[std::size_t(ws)] = widths.front();
-      seeds.push_back({std::move(copy), false, "a peak split off"});
+      std::vector<double> peak = beside(std::size_t(c));
+      peak[std::size_t(ws)] = widths.front();
+      seeds.push_back({std::move(peak), false, "a peak split off"});
     }
     if (seeds.empty()) return std::nullopt;
     const std::string name = ActiveSpec(0);
@@ -597,7 +601,7 @@ class StartSearch {
         c.origin = std::move(origin);
       }
       s_.res.local_optima.push_back({c.cost, c.p, c.origin});
-      if (!better || c.cost < better->cost) better = c;
+      if (!better || c.cost < better->cost) better = std::move(c);
     }
     return better;
   }
