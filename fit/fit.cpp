@@ -47,8 +47,11 @@ Options WithoutLoss(const Options& o) {
 // the solve, at its last Jacobian (the point before its last step, or the
 // solution). With `from` (J^T J and J^T r at u: a solve that goes on after
 // held bounds are released) the secant end phase runs alone (SolveToEnd).
+// With `pause` (Start::pause) the end phase may pause where the cost
+// creeps; `paused` says whether it did.
+using Pause = std::function<bool(const std::vector<double>& p)>;
 std::optional<NormalCache::Normal> FinalSolve(const FitState& s, const Engine& engine, std::vector<double>& u,
-                                              const NormalCache::Normal* from) {
+                                              const NormalCache::Normal* from, const Pause& pause, bool& paused) {
   Result& res = s.res;
   const Options& o = s.o;
   const std::size_t m = 3 * s.full.size();
@@ -64,7 +67,11 @@ std::optional<NormalCache::Normal> FinalSolve(const FitState& s, const Engine& e
         tp.rmse = RmseAt(engine, s.full, at, cost, weights_are_metric);
         res.trace.push_back(tp);
         if (o.progress) o.progress(iteration, tp.seconds, cost);
-      });
+      },
+      std::numeric_limits<double>::infinity(),
+      pause ? [&](const std::vector<double>& at) { return pause(engine.ToUser(at)); }
+            : std::function<bool(const std::vector<double>&)>());
+  paused = solved.paused;
   const ceres::Solver::Summary& summary = solved.summary;
   res.solve_seconds = s.elapsed();
   res.params = engine.ToUser(u);
@@ -81,12 +88,13 @@ std::optional<NormalCache::Normal> FinalSolve(const FitState& s, const Engine& e
 // The final solve, holding the bounds that are active at its start
 // (HoldingBounds).
 std::optional<NormalCache::Normal> SolveWithActiveSet(const FitState& s, const Evaluators& model, double loss_scale,
-                                                      const Engine& engine, std::vector<double>& u) {
+                                                      const Engine& engine, std::vector<double>& u,
+                                                      const Pause& pause, bool& paused) {
   std::optional<NormalCache::Normal> last;
   std::optional<NormalCache::Normal> held =
       HoldingBounds(model, s.o, loss_scale, engine, s.full, s.chunk, u,
                     [&](const Engine& e, std::vector<double>& v, const NormalCache::Normal* from) {
-                      last = FinalSolve(s, e, v, from);
+                      last = FinalSolve(s, e, v, from, pause, paused);
                     });
   return held ? held : last;
 }
@@ -159,13 +167,18 @@ Result FitInArena(const Evaluators& model, const Dataset& data, const Options& o
   res.loss_scale = o.loss != Loss::kNone ? loss_scale : 0.0;
   const Engine engine(model, o, loss_scale, layout);
   res.init_seconds = elapsed();
-  std::optional<NormalCache::Normal> jtj = SolveWithActiveSet(s, model, loss_scale, engine, u);
-  if (start.after_final)
-    if (std::optional<std::vector<double>> again = start.after_final(res.params)) {
+  bool paused = false;
+  std::optional<NormalCache::Normal> jtj = SolveWithActiveSet(s, model, loss_scale, engine, u, start.pause, paused);
+  if (start.after_final) {
+    // A new final solve from the better point after_final finds, or the
+    // paused one resumed.
+    std::optional<std::vector<double>> again = start.after_final(res.params, paused);
+    if (again) {
       u = *again;
       res.init_seconds = elapsed();
-      jtj = SolveWithActiveSet(s, model, loss_scale, engine, u);
     }
+    if (again || paused) jtj = SolveWithActiveSet(s, model, loss_scale, engine, u, {}, paused);
+  }
   const double residual_variance = ResidualVariance(s);
   Summarise(s, engine, u, residual_variance);
   Uncertainty(s, engine, u, residual_variance, jtj);

@@ -386,18 +386,30 @@ struct NormalCache {
 // bounds and accepted when it lowers the cost; ends when a step lowers
 // the cost by at most ftol of it. Each accepted step costs one Jacobian
 // pass, a rejected one a cost pass; `accepted` is called with each new
-// point's iteration, cost and parameters.
+// point's iteration, cost and parameters. Where the cost creeps (Creeps)
+// and pause(u) says so, the phase ends there (`paused`).
+//
+// The cost creeps where, over the last kCreepSteps accepted steps, it fell
+// by at most kCreep of it, and the last half of them lowered it by at least
+// kCreepRatio times the first half: steps that no longer shrink, as along a
+// flat valley (converging linearly, by 0.87 or more a step). Measured:
+// hazy_red_dielectric under cbrt with three lobes, 190 steps of 1e-9 to
+// 1.6e-6 each (bench/RESULTS.md). costs: at each accepted point.
+constexpr int kCreepSteps = 10;
+constexpr double kCreep = 1e-4, kCreepRatio = 0.5;
+bool Creeps(const std::vector<double>& costs);
 struct Tail {
   std::vector<double> u;
   double cost = 0;
   NormalCache::Normal normal;  // J^T J and J^T r at u
   int iterations = 0, accepted = 0;
-  bool converged = false;
+  bool converged = false, paused = false;
   double change = 0;  // the relative decrease of the cost at the last accepted step
 };
 Tail SecantTail(const Engine& e, const Prepared& d, std::size_t chunk, const NormalCache::Normal& last, double cost,
                 const std::optional<NormalCache::Normal>& previous, double ftol, int max_iterations,
-                const std::function<void(int, double, const std::vector<double>&)>& accepted);
+                const std::function<void(int, double, const std::vector<double>&)>& accepted,
+                const std::function<bool(const std::vector<double>&)>& pause = {});
 
 // Ceres' solve (options so) over d from internal parameters u (updated in
 // place) that hands over to SecantTail once its steps converge linearly:
@@ -411,16 +423,18 @@ Tail SecantTail(const Engine& e, const Prepared& d, std::size_t chunk, const Nor
 // With a finite stop_above the solve ends early (`bounded`, without the end
 // phase) at the first point whose cost less kGainBound times its
 // Gauss-Newton gain lies above stop_above: from there the optimum cannot
-// reach stop_above.
+// reach stop_above. With `pause` the end phase may end where the cost
+// creeps (SecantTail; `paused`).
 struct Solved {
   ceres::Solver::Summary summary;
   std::optional<NormalCache::Normal> normal;
-  bool bounded = false;
+  bool bounded = false, paused = false;
 };
 Solved SolveToEnd(const Engine& e, const Prepared& d, std::size_t chunk, std::vector<double>& u,
                   ceres::Solver::Options so, const NormalCache::Normal* from,
                   const std::function<void(int, double, const std::vector<double>&)>& trace,
-                  double stop_above = std::numeric_limits<double>::infinity());
+                  double stop_above = std::numeric_limits<double>::infinity(),
+                  const std::function<bool(const std::vector<double>&)>& pause = {});
 
 // The decrease of the cost that the Gauss-Newton model with normal matrix
 // jtj and gradient g = J^T r promises, without bounds (which can only
@@ -452,12 +466,17 @@ ceres::Solver::Options SolverOptions(const Options& o, LinearSolver solver, int 
 // The internal parameters u the final solve starts from: Options::initial,
 // or the best local optimum of the start search (Result::starts, trace,
 // local_optima and kept record it). For a sum on a large table,
-// after_final(p) is then called with the final solve's user parameters p:
-// it solves on all samples the sub-sums that could still be better, and
-// returns the internal parameters of a new final solve when one is.
+// after_final(p, paused) is then called with the final solve's user
+// parameters p and whether it paused (`pause`): it solves on all samples
+// the sub-sums that could still be better, tries the splits (with near
+// copies merged where it paused), and returns the internal parameters of a
+// new final solve when one is.
 struct Start {
   std::vector<double> u;
-  std::function<std::optional<std::vector<double>>(const std::vector<double>& p)> after_final;
+  std::function<std::optional<std::vector<double>>(const std::vector<double>& p, bool paused)> after_final;
+  // Whether a final solve whose cost creeps at user parameters p pauses
+  // there for after_final (resumed when it returns nothing); empty: never.
+  std::function<bool(const std::vector<double>& p)> pause;
 };
 Start StartingPoint(const FitState& s);
 

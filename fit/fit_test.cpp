@@ -986,6 +986,69 @@ TEST(Fit, SolveStopsWhereItsOptimumIsBoundedAboveALevel) {
   EXPECT_EQ(high.summary.final_cost, optimum);
 }
 
+// A solve given `pause` may end its secant end phase where the cost creeps:
+// the predicate is asked only at accepted points where the cost fell by at
+// most kCreep of it over the last kCreepSteps steps, the last half of them
+// by at least kCreepRatio times the first half; answered no, the solve
+// is the one without it, point for point; answered yes, it stops there
+// (`paused`, not converged) at that point of the full solve's trace. Three
+// lobes on the outside material, two of them near in width (0.07 and 0.072)
+// and apart in f0, creep along their flat valley under cbrt (about 3e-6 a
+// step for 20 steps).
+TEST(Fit, EndPhasePausesWhereTheCostCreeps) {
+  const Dataset d = OutsideMaterial(3000, 41);
+  const Model m = Model::Parse("lambert+ggx+ggx+ggx");
+  Options o;
+  o.metric = Metric::kCbrt;
+  const ModelEvaluators evaluators{m};
+  const Engine e(evaluators, o, 1.0, MakeLayout(m.Info(), o));
+  std::vector<std::size_t> index(d.samples.size());
+  std::iota(index.begin(), index.end(), std::size_t(0));
+  const Prepared prep = Prepare(d, index, o);
+  const std::vector<double> start = e.ToInternal(ParseParams(
+      m.Info(), "lambert.albedo=0.3:0.25:0.2,ggx.alpha=0.07,ggx.f0=0.04,ggx.weight=0.9,ggx#2.alpha=0.072,"
+                "ggx#2.f0=0.8,ggx#2.weight=0.05,ggx#3.alpha=0.35,ggx#3.f0=0.04,ggx#3.weight=0.25"));
+  struct Run {
+    std::vector<double> costs;  // at every traced point
+    std::vector<std::size_t> asked;  // trace positions where pause was asked
+    Solved solved;
+  };
+  const auto solve = [&](int answer) {  // -1: no pause; 0: answers no; 1: yes
+    Run r;
+    std::vector<double> u = start;
+    const std::function<bool(const std::vector<double>&)> pause = [&](const std::vector<double>&) {
+      r.asked.push_back(r.costs.size() - 1);
+      return answer == 1;
+    };
+    r.solved = SolveToEnd(e, prep, 64, u, SolverOptions(o, LinearSolver::kDenseQr, 200), nullptr,
+                          [&](int, double cost, const std::vector<double>&) { r.costs.push_back(cost); },
+                          std::numeric_limits<double>::infinity(),
+                          answer < 0 ? std::function<bool(const std::vector<double>&)>() : pause);
+    return r;
+  };
+  const Run plain = solve(-1), no = solve(0), yes = solve(1);
+  ASSERT_TRUE(plain.solved.summary.IsSolutionUsable());
+  EXPECT_FALSE(plain.solved.paused);
+  EXPECT_FALSE(no.solved.paused);
+  EXPECT_EQ(no.costs, plain.costs);
+  EXPECT_EQ(no.solved.summary.final_cost, plain.solved.summary.final_cost);
+  ASSERT_FALSE(no.asked.empty()) << "the cost never crept: " << plain.costs.size() << " points";
+  for (std::size_t k : no.asked) {
+    ASSERT_GE(k, std::size_t(kCreepSteps));
+    const double total = no.costs[k - kCreepSteps] - no.costs[k], late = no.costs[k - kCreepSteps / 2] - no.costs[k];
+    EXPECT_LE(total, kCreep * no.costs[k]) << k;
+    EXPECT_GE(late, kCreepRatio * (total - late)) << k;
+  }
+  // The first creeping point of the end phase.
+  EXPECT_TRUE(yes.solved.paused);
+  EXPECT_EQ(yes.asked.size(), 1u);
+  EXPECT_EQ(yes.asked.front(), no.asked.front());
+  EXPECT_EQ(yes.solved.summary.termination_type, ceres::NO_CONVERGENCE);
+  ASSERT_EQ(yes.costs.size(), no.asked.front() + 1);
+  EXPECT_EQ(yes.solved.summary.final_cost, plain.costs[no.asked.front()]);
+  EXPECT_LT(yes.costs.size(), plain.costs.size());
+}
+
 // A sum's Jacobian is taken lobe by lobe, each lobe on a Jet of its own
 // derivative slots: against central differences of the residuals, with
 // colour slots shared, a tie across lobes, a fixed parameter, log-scale

@@ -332,12 +332,21 @@ bool TailStep(const Eigen::MatrixXd& jtj, const Eigen::MatrixXd& a, const Eigen:
 
 }  // namespace
 
+bool Creeps(const std::vector<double>& costs) {
+  const std::size_t n = costs.size();
+  if (n <= std::size_t(kCreepSteps)) return false;
+  const double c = costs[n - 1], total = costs[n - 1 - kCreepSteps] - c, late = costs[n - 1 - kCreepSteps / 2] - c;
+  return total <= kCreep * c && late >= kCreepRatio * (total - late);
+}
+
 Tail SecantTail(const Engine& e, const Prepared& d, std::size_t chunk, const NormalCache::Normal& last, double cost,
                 const std::optional<NormalCache::Normal>& previous, double ftol, int max_iterations,
-                const std::function<void(int, double, const std::vector<double>&)>& accepted) {
+                const std::function<void(int, double, const std::vector<double>&)>& accepted,
+                const std::function<bool(const std::vector<double>&)>& pause) {
   Tail t;
   t.u = last.at;
   t.cost = cost;
+  std::vector<double> costs{cost};  // at each accepted point
   t.normal = last;
   const Eigen::Index n = Eigen::Index(t.u.size());
   const auto vec = [](const std::vector<double>& v) { return Eigen::Map<const Eigen::VectorXd>(v.data(), Eigen::Index(v.size())); };
@@ -410,6 +419,11 @@ Tail SecantTail(const Engine& e, const Prepared& d, std::size_t chunk, const Nor
       t.converged = true;
       break;
     }
+    costs.push_back(c);
+    if (pause && Creeps(costs) && pause(t.u)) {
+      t.paused = true;
+      break;
+    }
   }
   // No step lowers the cost even as a short gradient step: the point is a
   // minimum to the precision of the cost.
@@ -452,7 +466,8 @@ double GainWithinBounds(const Engine& e, const std::vector<double>& u, const Eig
 
 Solved SolveToEnd(const Engine& e, const Prepared& d, std::size_t chunk, std::vector<double>& u,
                   ceres::Solver::Options so, const NormalCache::Normal* from,
-                  const std::function<void(int, double, const std::vector<double>&)>& trace, double stop_above) {
+                  const std::function<void(int, double, const std::vector<double>&)>& trace, double stop_above,
+                  const std::function<bool(const std::vector<double>&)>& pause) {
   ceres::Problem problem;
   NormalCache cache;
   BuildProblem(problem, e, d, chunk, u, &cache);
@@ -510,13 +525,19 @@ Solved SolveToEnd(const Engine& e, const Prepared& d, std::size_t chunk, std::ve
   const int done = summary.num_successful_steps + summary.num_unsuccessful_steps;
   const Tail t = SecantTail(e, d, chunk, *last, costs.back(), previous, so.function_tolerance,
                             so.max_num_iterations - done,
-                            [&](int k, double cost, const std::vector<double>& at) { trace(done + k, cost, at); });
+                            [&](int k, double cost, const std::vector<double>& at) { trace(done + k, cost, at); },
+                            pause);
   u = t.u;
+  out.paused = t.paused;
   out.normal = t.normal;
   summary.final_cost = t.cost;
   summary.num_successful_steps += t.accepted;
   summary.num_unsuccessful_steps += t.iterations - t.accepted;
   summary.termination_type = t.converged ? ceres::CONVERGENCE : ceres::NO_CONVERGENCE;
+  if (t.paused) {
+    summary.message = "Paused in the secant end phase, where the cost creeps";
+    return out;
+  }
   summary.message = t.converged ? "Function tolerance reached in the secant end phase" +
                                       (from ? std::string(" after held bounds were released")
                                             : " after " + std::to_string(done) + " Levenberg-Marquardt iterations") +
