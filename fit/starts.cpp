@@ -1225,7 +1225,7 @@ Start RandomSearch(const FitState& s) {
     s.res.local_optima.push_back({found.first, e.ToUser(u), "random start"});
   }
   Keep(s, s.res.local_optima.front().params);
-  return {solved.front().second, {}};
+  return {solved.front().second, {}, {}};
 }
 
 // One lobe (or a model outside the registry): the grid starts, each solved
@@ -1270,7 +1270,7 @@ Start StartingPoint(const FitState& s) {
     std::vector<double> u = s.plain.ToInternal(o.initial);
     ClampToBounds(s.plain, u);
     s.res.starts = 1;
-    return {u, {}};
+    return {u, {}, {}};
   }
   if (o.random_starts > 0) return RandomSearch(s);
   // Only a registered model's sum has lobes to switch off and add back.
@@ -1278,7 +1278,7 @@ Start StartingPoint(const FitState& s) {
   if (sum && sum->LobeCount() >= 2) return SearchSum(s, *sum);
   std::vector<double> u = MultiStart(s);
   if (LargeTable(s)) RefineOnMiddle(s, u);
-  return {u, {}};
+  return {u, {}, {}};
 }
 
 }  // namespace brdfkit::fit
