@@ -721,9 +721,10 @@ class StartSearch {
 
   // Whether active copies a and b of one lobe lie near each other in p:
   // widths within kMergeSpread (relative), and switches whose sums one
-  // copy's bounds hold, so that Merged is a point of the sum.
+  // copy's bounds hold, so that Merged is a point of the sum. A lobe
+  // without a width has no seeds to free (SplitPeak).
   bool Near(const std::vector<double>& p, std::size_t a, std::size_t b) const {
-    return Close(p, a, b, kMergeSpread, false);
+    return WidthSlot(model_, a) >= 0 && Close(p, a, b, kMergeSpread, false);
   }
 
   // p with copies a and b merged into a (Near): a's switches the sums of
