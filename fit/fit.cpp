@@ -49,7 +49,6 @@ Options WithoutLoss(const Options& o) {
 // held bounds are released) the secant end phase runs alone (SolveToEnd).
 // With `pause` (Start::pause) the end phase may pause where the cost
 // creeps; `paused` says whether it did.
-using Pause = std::function<bool(const std::vector<double>& p)>;
 std::optional<NormalCache::Normal> FinalSolve(const FitState& s, const Engine& engine, std::vector<double>& u,
                                               const NormalCache::Normal* from, const Pause& pause, bool& paused) {
   Result& res = s.res;
@@ -69,8 +68,7 @@ std::optional<NormalCache::Normal> FinalSolve(const FitState& s, const Engine& e
         if (o.progress) o.progress(iteration, tp.seconds, cost);
       },
       std::numeric_limits<double>::infinity(),
-      pause ? [&](const std::vector<double>& at) { return pause(engine.ToUser(at)); }
-            : std::function<bool(const std::vector<double>&)>());
+      pause ? [&](const std::vector<double>& at) { return pause(engine.ToUser(at)); } : Pause());
   paused = solved.paused;
   const ceres::Solver::Summary& summary = solved.summary;
   res.solve_seconds = s.elapsed();

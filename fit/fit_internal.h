@@ -398,6 +398,9 @@ struct NormalCache {
 constexpr int kCreepSteps = 10;
 constexpr double kCreep = 1e-4, kCreepRatio = 0.5;
 bool Creeps(const std::vector<double>& costs);
+// Whether a solve pauses at parameters p (internal in SecantTail and
+// SolveToEnd, user parameters in Start); empty: never.
+using Pause = std::function<bool(const std::vector<double>& p)>;
 struct Tail {
   std::vector<double> u;
   double cost = 0;
@@ -409,7 +412,7 @@ struct Tail {
 Tail SecantTail(const Engine& e, const Prepared& d, std::size_t chunk, const NormalCache::Normal& last, double cost,
                 const std::optional<NormalCache::Normal>& previous, double ftol, int max_iterations,
                 const std::function<void(int, double, const std::vector<double>&)>& accepted,
-                const std::function<bool(const std::vector<double>&)>& pause = {});
+                const Pause& pause = {});
 
 // Ceres' solve (options so) over d from internal parameters u (updated in
 // place) that hands over to SecantTail once its steps converge linearly:
@@ -434,7 +437,7 @@ Solved SolveToEnd(const Engine& e, const Prepared& d, std::size_t chunk, std::ve
                   ceres::Solver::Options so, const NormalCache::Normal* from,
                   const std::function<void(int, double, const std::vector<double>&)>& trace,
                   double stop_above = std::numeric_limits<double>::infinity(),
-                  const std::function<bool(const std::vector<double>&)>& pause = {});
+                  const Pause& pause = {});
 
 // The decrease of the cost that the Gauss-Newton model with normal matrix
 // jtj and gradient g = J^T r promises, without bounds (which can only
@@ -476,7 +479,7 @@ struct Start {
   std::function<std::optional<std::vector<double>>(const std::vector<double>& p, bool paused)> after_final;
   // Whether a final solve whose cost creeps at user parameters p pauses
   // there for after_final (resumed when it returns nothing); empty: never.
-  std::function<bool(const std::vector<double>& p)> pause;
+  Pause pause;
 };
 Start StartingPoint(const FitState& s);
 

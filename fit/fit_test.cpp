@@ -1016,14 +1016,14 @@ TEST(Fit, EndPhasePausesWhereTheCostCreeps) {
   const auto solve = [&](int answer) {  // -1: no pause; 0: answers no; 1: yes
     Run r;
     std::vector<double> u = start;
-    const std::function<bool(const std::vector<double>&)> pause = [&](const std::vector<double>&) {
+    const Pause pause = [&](const std::vector<double>&) {
       r.asked.push_back(r.costs.size() - 1);
       return answer == 1;
     };
     r.solved = SolveToEnd(e, prep, 64, u, SolverOptions(o, LinearSolver::kDenseQr, 200), nullptr,
                           [&](int, double cost, const std::vector<double>&) { r.costs.push_back(cost); },
                           std::numeric_limits<double>::infinity(),
-                          answer < 0 ? std::function<bool(const std::vector<double>&)>() : pause);
+                          answer < 0 ? Pause() : pause);
     return r;
   };
   const Run plain = solve(-1), no = solve(0), yes = solve(1);

@@ -342,7 +342,7 @@ bool Creeps(const std::vector<double>& costs) {
 Tail SecantTail(const Engine& e, const Prepared& d, std::size_t chunk, const NormalCache::Normal& last, double cost,
                 const std::optional<NormalCache::Normal>& previous, double ftol, int max_iterations,
                 const std::function<void(int, double, const std::vector<double>&)>& accepted,
-                const std::function<bool(const std::vector<double>&)>& pause) {
+                const Pause& pause) {
   Tail t;
   t.u = last.at;
   t.cost = cost;
@@ -467,7 +467,7 @@ double GainWithinBounds(const Engine& e, const std::vector<double>& u, const Eig
 Solved SolveToEnd(const Engine& e, const Prepared& d, std::size_t chunk, std::vector<double>& u,
                   ceres::Solver::Options so, const NormalCache::Normal* from,
                   const std::function<void(int, double, const std::vector<double>&)>& trace, double stop_above,
-                  const std::function<bool(const std::vector<double>&)>& pause) {
+                  const Pause& pause) {
   ceres::Problem problem;
   NormalCache cache;
   BuildProblem(problem, e, d, chunk, u, &cache);
