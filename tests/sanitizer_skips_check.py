@@ -77,8 +77,12 @@ def build(tree, jobs):
     subprocess.run(['cmake', '--build', tree, '-j', str(jobs)], check=True, stdout=subprocess.DEVNULL)
 
 
-def gtest_names(exe):
-    out = subprocess.run([exe, '--gtest_list_tests'], check=True, capture_output=True, text=True).stdout
+def gtest_names(exe, profile_dir):
+    """The test names of exe; its profile (the coverage runtime writes one
+    on every exit, default.profraw in the working directory) goes to
+    profile_dir."""
+    env = dict(os.environ, LLVM_PROFILE_FILE=os.path.join(profile_dir, '%p-%m.profraw'))
+    out = subprocess.run([exe, '--gtest_list_tests'], check=True, capture_output=True, text=True, env=env).stdout
     names, suite = set(), ''
     for line in out.splitlines():
         if not line.strip():
@@ -147,9 +151,10 @@ def main():
     skips = [name for name, _ in sections]
     build(args.tree, args.jobs)
     tests_dir = os.path.join(args.tree, 'tests')
+    work = tempfile.mkdtemp(prefix='brdfkit-skips-')
     owner = {}
     for exe in EXECUTABLES:
-        for name in gtest_names(os.path.join(tests_dir, exe)):
+        for name in gtest_names(os.path.join(tests_dir, exe), os.path.join(work, 'list')):
             owner[name] = exe
     def exe_of(pattern):  # GoogleTest names may be patterns ('Set/FitMaterial.*')
         return next((owner[n] for n in sorted(owner) if fnmatch.fnmatchcase(n, pattern)), None)
@@ -157,7 +162,6 @@ def main():
     ctest_skips = [s for s in skips if '.' not in s]
     objects = [os.path.join(args.tree, 'brdfkit'), os.path.join(args.tree, 'brdfkit_extended')] + \
               [os.path.join(tests_dir, e) for e in EXECUTABLES]
-    work = tempfile.mkdtemp(prefix='brdfkit-skips-')
     negative = ':'.join(s for s in skips if '.' in s)
     for exe in EXECUTABLES:
         error = run([os.path.join(tests_dir, exe), f'--gtest_filter=-{negative}'], os.path.join(work, 'kept'),
