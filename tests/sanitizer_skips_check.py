@@ -77,12 +77,17 @@ def build(tree, jobs):
     subprocess.run(['cmake', '--build', tree, '-j', str(jobs)], check=True, stdout=subprocess.DEVNULL)
 
 
+def profile_env(profile_dir):
+    """The environment that sends a run's coverage profiles (and its child
+    processes') to profile_dir: the coverage runtime writes one on every
+    exit, default.profraw in the working directory unless told."""
+    return dict(os.environ, LLVM_PROFILE_FILE=os.path.join(profile_dir, '%p-%m.profraw'))
+
+
 def gtest_names(exe, profile_dir):
-    """The test names of exe; its profile (the coverage runtime writes one
-    on every exit, default.profraw in the working directory) goes to
-    profile_dir."""
-    env = dict(os.environ, LLVM_PROFILE_FILE=os.path.join(profile_dir, '%p-%m.profraw'))
-    out = subprocess.run([exe, '--gtest_list_tests'], check=True, capture_output=True, text=True, env=env).stdout
+    """The test names of exe; its profile goes to profile_dir."""
+    out = subprocess.run([exe, '--gtest_list_tests'], check=True, capture_output=True, text=True,
+                         env=profile_env(profile_dir)).stdout
     names, suite = set(), ''
     for line in out.splitlines():
         if not line.strip():
@@ -98,7 +103,7 @@ def run(cmd, profile_dir, cwd, cpu=None):
     """Runs one command, its profiles (and its child processes') in
     profile_dir; returns an error message, or None."""
     os.makedirs(profile_dir, exist_ok=True)
-    env = dict(os.environ, LLVM_PROFILE_FILE=os.path.join(profile_dir, '%p-%m.profraw'))
+    env = profile_env(profile_dir)
     # One core per skipped test: the coverage counters are shared by all
     # threads, and several threads incrementing them slow a run tenfold.
     if cpu is not None and shutil.which('taskset'):
