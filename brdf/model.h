@@ -346,14 +346,84 @@ inline std::vector<ExtensionModel>& ExtensionModels() {
 
 }  // namespace detail
 
-// Static description of every registered model: the list in registry.h,
-// then those added by RegisterModel, in registration order.
-inline std::vector<ModelInfo> RegisteredModelInfos() {
+namespace detail {
+
+// A model of registry.h made from its name and settings.
+struct BuiltinLobe {
+  std::size_t index = 0;  // in RegisteredModels
+  bool vanishes = false;  // Traits::kVanishes
+  ModelInfo info;
+  std::shared_ptr<const void> impl;
+};
+
+// The models of registry.h by name: their tables, traits and constructors.
+// Every registered model's constructor and table are instantiated here, so
+// programs that link brdfkit::validate get them compiled once, in
+// validate/models.cpp (extern below), instead of in each translation unit
+// that parses a model. Members defined outside the class: not inline, so
+// that the extern declaration holds.
+template <typename Models = RegisteredModels>
+struct Builtin {
+  static std::vector<ModelInfo> Infos();
+  // false when no model of registry.h is called `name`.
+  static bool TraitsOf(const std::string& name, DeclaredTraits& out);
+  // The model `name` with settings s, arg (when not empty) the value of its
+  // first setting; false when no model of registry.h is called `name`.
+  // Throws ModelError on an argument or setting the model does not take.
+  static bool Make(const std::string& name, const std::string& arg, Settings s, BuiltinLobe& out);
+};
+
+template <typename Models>
+std::vector<ModelInfo> Builtin<Models>::Infos() {
   std::vector<ModelInfo> out;
-  detail::ForEachModelType([&](std::size_t, auto* tag) {
+  ForEachModelType([&](std::size_t, auto* tag) {
     out.push_back(std::remove_pointer_t<decltype(tag)>::Info());
     return false;
   });
+  return out;
+}
+
+template <typename Models>
+bool Builtin<Models>::TraitsOf(const std::string& name, DeclaredTraits& out) {
+  return ForEachModelType([&](std::size_t, auto* tag) {
+    using M = std::remove_pointer_t<decltype(tag)>;
+    if (M::Info().name != name) return false;
+    out = {Traits<M>::kKind, Traits<M>::kChannelsIndependent, Traits<M>::Slots(), Traits<M>::kVanishes};
+    return true;
+  });
+}
+
+template <typename Models>
+bool Builtin<Models>::Make(const std::string& name, const std::string& arg, Settings s, BuiltinLobe& out) {
+  return ForEachModelType([&](std::size_t index, auto* tag) {
+    using M = std::remove_pointer_t<decltype(tag)>;
+    ModelInfo info = M::Info();
+    if (info.name != name) return false;
+    if (!arg.empty()) {
+      if (info.settings.empty()) throw ModelError("model '" + name + "' takes no ':' argument (got '" + arg + "')");
+      s[info.settings.front()] = arg;
+    }
+    for (const auto& [k, v] : s)
+      if (std::find(info.settings.begin(), info.settings.end(), k) == info.settings.end())
+        throw ModelError("model '" + name + "' has no setting '" + k + "'");
+    out.index = index;
+    out.vanishes = Traits<M>::kVanishes;
+    out.info = std::move(info);
+    out.impl = std::make_shared<const M>(s);
+    return true;
+  });
+}
+
+#ifdef BRDFKIT_PRECOMPILED_MODELS
+extern template struct Builtin<RegisteredModels>;
+#endif
+
+}  // namespace detail
+
+// Static description of every registered model: the list in registry.h,
+// then those added by RegisterModel, in registration order.
+inline std::vector<ModelInfo> RegisteredModelInfos() {
+  std::vector<ModelInfo> out = detail::Builtin<>::Infos();
   for (const detail::ExtensionModel& e : detail::ExtensionModels()) out.push_back(e.info);
   return out;
 }
@@ -361,13 +431,7 @@ inline std::vector<ModelInfo> RegisteredModelInfos() {
 // The declared traits of the registered model `model_name`.
 inline DeclaredTraits TraitsOf(const std::string& model_name) {
   DeclaredTraits out;
-  detail::ForEachModelType([&](std::size_t, auto* tag) {
-    using M = std::remove_pointer_t<decltype(tag)>;
-    if (M::Info().name != model_name) return false;
-    out = {detail::Traits<M>::kKind, detail::Traits<M>::kChannelsIndependent, detail::Traits<M>::Slots(),
-           detail::Traits<M>::kVanishes};
-    return true;
-  });
+  detail::Builtin<>::TraitsOf(model_name, out);
   for (const detail::ExtensionModel& e : detail::ExtensionModels())
     if (e.info.name == model_name) out = e.traits;
   return out;
@@ -429,24 +493,14 @@ class Model {
       if (name.empty())
         throw ModelError("model '" + spec + "': empty lobe name in a sum (expected e.g. lambert+ggx)");
       Settings s = parts.size() == 1 ? settings : Settings{};
-      bool found = detail::ForEachModelType([&](std::size_t index, auto* tag) {
-        using M = std::remove_pointer_t<decltype(tag)>;
-        const ModelInfo info = M::Info();
-        if (info.name != name) return false;
-        if (!arg.empty()) {
-          if (info.settings.empty())
-            throw ModelError("model '" + name + "' takes no ':' argument (got '" + arg + "')");
-          s[info.settings.front()] = arg;
-        }
-        for (const auto& [k, v] : s)
-          if (std::find(info.settings.begin(), info.settings.end(), k) == info.settings.end())
-            throw ModelError("model '" + name + "' has no setting '" + k + "'");
-        lobe.index = index;
-        lobe.vanishes = detail::Traits<M>::kVanishes;
-        lobe.info = info;
-        lobe.impl = std::make_shared<const M>(s);
-        return true;
-      });
+      detail::BuiltinLobe builtin;
+      bool found = detail::Builtin<>::Make(name, arg, s, builtin);
+      if (found) {
+        lobe.index = builtin.index;
+        lobe.vanishes = builtin.vanishes;
+        lobe.info = std::move(builtin.info);
+        lobe.impl = std::move(builtin.impl);
+      }
       for (std::size_t k = 0; !found && k < detail::ExtensionModels().size(); ++k) {
         const detail::ExtensionModel& e = detail::ExtensionModels()[k];
         if (e.info.name != name) continue;
