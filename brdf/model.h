@@ -311,12 +311,13 @@ class SumBxdf final : public Bxdf<T> {
   ModelInfo info_;
 };
 
-template <std::size_t I = 0, typename F>
+// f(index, (M*)nullptr) for each model M of the tuple Models in turn, until f returns true.
+template <typename Models = RegisteredModels, std::size_t I = 0, typename F>
 bool ForEachModelType(F&& f) {
-  if constexpr (I < std::tuple_size_v<RegisteredModels>) {
-    using M = std::tuple_element_t<I, RegisteredModels>;
+  if constexpr (I < std::tuple_size_v<Models>) {
+    using M = std::tuple_element_t<I, Models>;
     if (f(I, static_cast<M*>(nullptr))) return true;
-    return ForEachModelType<I + 1>(std::forward<F>(f));
+    return ForEachModelType<Models, I + 1>(std::forward<F>(f));
   }
   return false;
 }
@@ -344,10 +345,6 @@ inline std::vector<ExtensionModel>& ExtensionModels() {
   return models;
 }
 
-}  // namespace detail
-
-namespace detail {
-
 // A model of registry.h made from its name and settings.
 struct BuiltinLobe {
   std::size_t index = 0;  // in RegisteredModels
@@ -356,8 +353,9 @@ struct BuiltinLobe {
   std::shared_ptr<const void> impl;
 };
 
-// The models of registry.h by name: their tables, traits and constructors.
-// Every registered model's constructor and table are instantiated here, so
+// The models of the tuple Models (registry.h's) by name: their tables,
+// traits and constructors; indices are positions in Models. Every
+// registered model's constructor and table are instantiated here, so
 // programs that link brdfkit::validate get them compiled once, in
 // validate/models.cpp (extern below), instead of in each translation unit
 // that parses a model. Members defined outside the class: not inline, so
@@ -376,7 +374,7 @@ struct Builtin {
 template <typename Models>
 std::vector<ModelInfo> Builtin<Models>::Infos() {
   std::vector<ModelInfo> out;
-  ForEachModelType([&](std::size_t, auto* tag) {
+  ForEachModelType<Models>([&](std::size_t, auto* tag) {
     out.push_back(std::remove_pointer_t<decltype(tag)>::Info());
     return false;
   });
@@ -385,7 +383,7 @@ std::vector<ModelInfo> Builtin<Models>::Infos() {
 
 template <typename Models>
 bool Builtin<Models>::TraitsOf(const std::string& name, DeclaredTraits& out) {
-  return ForEachModelType([&](std::size_t, auto* tag) {
+  return ForEachModelType<Models>([&](std::size_t, auto* tag) {
     using M = std::remove_pointer_t<decltype(tag)>;
     if (M::Info().name != name) return false;
     out = {Traits<M>::kKind, Traits<M>::kChannelsIndependent, Traits<M>::Slots(), Traits<M>::kVanishes};
@@ -395,7 +393,7 @@ bool Builtin<Models>::TraitsOf(const std::string& name, DeclaredTraits& out) {
 
 template <typename Models>
 bool Builtin<Models>::Make(const std::string& name, const std::string& arg, Settings s, BuiltinLobe& out) {
-  return ForEachModelType([&](std::size_t index, auto* tag) {
+  return ForEachModelType<Models>([&](std::size_t index, auto* tag) {
     using M = std::remove_pointer_t<decltype(tag)>;
     ModelInfo info = M::Info();
     if (info.name != name) return false;
