@@ -260,6 +260,52 @@ TEST(RglWriter, ErrorFallsWithTheResolution) {
 // the slices and between them, for an isotropic file (rows relative to wi's
 // azimuth) and an anisotropic one (absolute rows; queried at its phi_i
 // slices, where the slices' own rows hold).
+// The automatic resolutions are the README's: isotropic 80 slices, a vndf
+// of 256 x 128 and values of 192 x 128; anisotropic slices of 64^2, 32
+// theta_i slices; a column count left automatic follows a row count given
+// (a square table); what is given stays.
+TEST(RglWriter, AutomaticResolutionsAreTheDocumentedOnes) {
+  const RglOptions iso = WithDefaults({});
+  EXPECT_EQ(iso.phi_i, 0);
+  EXPECT_EQ(iso.theta_i, 80);
+  EXPECT_EQ(iso.ndf, 512);
+  EXPECT_EQ(iso.sigma, 64);
+  EXPECT_EQ(iso.vndf, 256);
+  EXPECT_EQ(iso.vndf_theta, 128);
+  EXPECT_EQ(iso.samples, 192);
+  EXPECT_EQ(iso.samples_theta, 128);
+  RglOptions a;
+  a.phi_i = 24;
+  a = WithDefaults(a);
+  EXPECT_EQ(a.phi_i, 24);
+  EXPECT_EQ(a.theta_i, 32);
+  EXPECT_EQ(a.vndf, 64);
+  EXPECT_EQ(a.vndf_theta, 64);
+  EXPECT_EQ(a.samples, 64);
+  EXPECT_EQ(a.samples_theta, 64);
+  for (int phi_i : {0, 24}) {
+    SCOPED_TRACE(phi_i);
+    RglOptions rows;  // rows given, columns automatic: square
+    rows.phi_i = phi_i;
+    rows.vndf = 100;
+    rows.samples = 50;
+    rows = WithDefaults(rows);
+    EXPECT_EQ(rows.vndf_theta, 100);
+    EXPECT_EQ(rows.samples_theta, 50);
+    RglOptions columns;  // columns given, rows automatic: the default rows
+    columns.phi_i = phi_i;
+    columns.theta_i = 7;
+    columns.vndf_theta = 30;
+    columns.samples_theta = 20;
+    columns = WithDefaults(columns);
+    EXPECT_EQ(columns.theta_i, 7);
+    EXPECT_EQ(columns.vndf_theta, 30);
+    EXPECT_EQ(columns.samples_theta, 20);
+    EXPECT_EQ(columns.vndf, phi_i == 0 ? 256 : 64);
+    EXPECT_EQ(columns.samples, phi_i == 0 ? 192 : 64);
+  }
+}
+
 TEST(RglWriter, RowsPutTheHorizonAtOneSquareCoordinate) {
   const Analytic g("lambert", "albedo=0.5");
   RglOptions iso, aniso;
