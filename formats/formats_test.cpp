@@ -3,6 +3,7 @@
 // format, and bad input.
 #include <gtest/gtest.h>
 
+#include <array>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -265,44 +266,33 @@ TEST(RglWriter, ErrorFallsWithTheResolution) {
 // theta_i slices; a column count left automatic follows a row count given
 // (a square table); what is given stays.
 TEST(RglWriter, AutomaticResolutionsAreTheDocumentedOnes) {
+  // theta_i, vndf rows x columns, value rows x columns.
+  using Resolution = std::array<int, 5>;
+  const auto of = [](const RglOptions& o) {
+    return Resolution{o.theta_i, o.vndf, o.vndf_theta, o.samples, o.samples_theta};
+  };
   const RglOptions iso = WithDefaults({});
-  EXPECT_EQ(iso.phi_i, 0);
-  EXPECT_EQ(iso.theta_i, 80);
+  EXPECT_EQ(of(iso), (Resolution{80, 256, 128, 192, 128}));
   EXPECT_EQ(iso.ndf, 512);
   EXPECT_EQ(iso.sigma, 64);
-  EXPECT_EQ(iso.vndf, 256);
-  EXPECT_EQ(iso.vndf_theta, 128);
-  EXPECT_EQ(iso.samples, 192);
-  EXPECT_EQ(iso.samples_theta, 128);
-  RglOptions a;
-  a.phi_i = 24;
-  a = WithDefaults(a);
-  EXPECT_EQ(a.phi_i, 24);
-  EXPECT_EQ(a.theta_i, 32);
-  EXPECT_EQ(a.vndf, 64);
-  EXPECT_EQ(a.vndf_theta, 64);
-  EXPECT_EQ(a.samples, 64);
-  EXPECT_EQ(a.samples_theta, 64);
+  EXPECT_EQ(iso.phi_i, 0);
+  RglOptions aniso;
+  aniso.phi_i = 24;
+  EXPECT_EQ(of(WithDefaults(aniso)), (Resolution{32, 64, 64, 64, 64}));
   for (int phi_i : {0, 24}) {
     SCOPED_TRACE(phi_i);
-    RglOptions rows;  // rows given, columns automatic: square
-    rows.phi_i = phi_i;
-    rows.vndf = 100;
-    rows.samples = 50;
-    rows = WithDefaults(rows);
-    EXPECT_EQ(rows.vndf_theta, 100);
-    EXPECT_EQ(rows.samples_theta, 50);
-    RglOptions columns;  // columns given, rows automatic: the default rows
-    columns.phi_i = phi_i;
-    columns.theta_i = 7;
-    columns.vndf_theta = 30;
-    columns.samples_theta = 20;
-    columns = WithDefaults(columns);
-    EXPECT_EQ(columns.theta_i, 7);
-    EXPECT_EQ(columns.vndf_theta, 30);
-    EXPECT_EQ(columns.samples_theta, 20);
-    EXPECT_EQ(columns.vndf, phi_i == 0 ? 256 : 64);
-    EXPECT_EQ(columns.samples, phi_i == 0 ? 192 : 64);
+    const int rows = phi_i == 0 ? 192 : 64, vndf_rows = phi_i == 0 ? 256 : 64;
+    RglOptions given;  // rows given, columns automatic: square tables
+    given.phi_i = phi_i;
+    given.theta_i = 7;
+    given.vndf = 100;
+    given.samples = 50;
+    EXPECT_EQ(of(WithDefaults(given)), (Resolution{7, 100, 100, 50, 50}));
+    given = {};  // columns given, rows automatic: the default rows
+    given.phi_i = phi_i;
+    given.vndf_theta = 30;
+    given.samples_theta = 20;
+    EXPECT_EQ(of(WithDefaults(given)), (Resolution{phi_i == 0 ? 80 : 32, vndf_rows, 30, rows, 20}));
   }
 }
 
