@@ -345,13 +345,26 @@ inline std::vector<ExtensionModel>& ExtensionModels() {
   return models;
 }
 
-// A model of registry.h made from its name and settings.
-struct BuiltinLobe {
-  std::size_t index = 0;  // in RegisteredModels
-  bool vanishes = false;  // Traits::kVanishes
+// A model made from its name and settings: a lobe of a Model.
+struct MadeModel {
+  std::size_t index = 0;  // in RegisteredModels, then in ExtensionModels() after them
+  bool vanishes = false;  // zero everywhere with its colour parameters at 0 (Traits::kVanishes)
   ModelInfo info;
   std::shared_ptr<const void> impl;
 };
+
+// Settings s for the model `name` of table info, with arg (when not empty)
+// as the value of its first setting. Throws ModelError on an argument or a
+// setting the model does not take.
+inline void TakeSettings(const std::string& name, const ModelInfo& info, const std::string& arg, Settings& s) {
+  if (!arg.empty()) {
+    if (info.settings.empty()) throw ModelError("model '" + name + "' takes no ':' argument (got '" + arg + "')");
+    s[info.settings.front()] = arg;
+  }
+  for (const auto& [k, v] : s)
+    if (std::find(info.settings.begin(), info.settings.end(), k) == info.settings.end())
+      throw ModelError("model '" + name + "' has no setting '" + k + "'");
+}
 
 // The models of the tuple Models (registry.h's) by name: their tables,
 // traits and constructors; indices are positions in Models. Every
@@ -368,7 +381,7 @@ struct Builtin {
   // The model `name` with settings s, arg (when not empty) the value of its
   // first setting; false when no model of registry.h is called `name`.
   // Throws ModelError on an argument or setting the model does not take.
-  static bool Make(const std::string& name, const std::string& arg, Settings s, BuiltinLobe& out);
+  static bool Make(const std::string& name, const std::string& arg, Settings s, MadeModel& out);
 };
 
 template <typename Models>
@@ -392,18 +405,12 @@ bool Builtin<Models>::TraitsOf(const std::string& name, DeclaredTraits& out) {
 }
 
 template <typename Models>
-bool Builtin<Models>::Make(const std::string& name, const std::string& arg, Settings s, BuiltinLobe& out) {
+bool Builtin<Models>::Make(const std::string& name, const std::string& arg, Settings s, MadeModel& out) {
   return ForEachModelType<Models>([&](std::size_t index, auto* tag) {
     using M = std::remove_pointer_t<decltype(tag)>;
     ModelInfo info = M::Info();
     if (info.name != name) return false;
-    if (!arg.empty()) {
-      if (info.settings.empty()) throw ModelError("model '" + name + "' takes no ':' argument (got '" + arg + "')");
-      s[info.settings.front()] = arg;
-    }
-    for (const auto& [k, v] : s)
-      if (std::find(info.settings.begin(), info.settings.end(), k) == info.settings.end())
-        throw ModelError("model '" + name + "' has no setting '" + k + "'");
+    TakeSettings(name, info, arg, s);
     out.index = index;
     out.vanishes = Traits<M>::kVanishes;
     out.info = std::move(info);
@@ -491,25 +498,11 @@ class Model {
       if (name.empty())
         throw ModelError("model '" + spec + "': empty lobe name in a sum (expected e.g. lambert+ggx)");
       Settings s = parts.size() == 1 ? settings : Settings{};
-      detail::BuiltinLobe builtin;
-      bool found = detail::Builtin<>::Make(name, arg, s, builtin);
-      if (found) {
-        lobe.index = builtin.index;
-        lobe.vanishes = builtin.vanishes;
-        lobe.info = std::move(builtin.info);
-        lobe.impl = std::move(builtin.impl);
-      }
+      bool found = detail::Builtin<>::Make(name, arg, s, lobe);
       for (std::size_t k = 0; !found && k < detail::ExtensionModels().size(); ++k) {
         const detail::ExtensionModel& e = detail::ExtensionModels()[k];
         if (e.info.name != name) continue;
-        if (!arg.empty()) {
-          if (e.info.settings.empty())
-            throw ModelError("model '" + name + "' takes no ':' argument (got '" + arg + "')");
-          s[e.info.settings.front()] = arg;
-        }
-        for (const auto& [key, v] : s)
-          if (std::find(e.info.settings.begin(), e.info.settings.end(), key) == e.info.settings.end())
-            throw ModelError("model '" + name + "' has no setting '" + key + "'");
+        detail::TakeSettings(name, e.info, arg, s);
         lobe.index = std::tuple_size_v<RegisteredModels> + k;
         lobe.vanishes = e.traits.vanishes;
         lobe.info = e.info;
@@ -563,12 +556,8 @@ class Model {
   }
 
  private:
-  struct Lobe {
-    std::size_t index = 0;
+  struct Lobe : detail::MadeModel {
     std::string prefix;
-    bool vanishes = false;  // zero everywhere with its colour parameters at 0 (Traits::kVanishes)
-    ModelInfo info;
-    std::shared_ptr<const void> impl;
   };
 
   template <typename T>
