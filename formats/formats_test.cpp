@@ -255,12 +255,6 @@ TEST(RglWriter, ErrorFallsWithTheResolution) {
   EXPECT_LT(fine.p99_relative, 0.5 * coarse.p99_relative);
 }
 
-// The vndf rows are aligned (formats/rgl_writer.h): the normal that
-// reflects wi onto the horizon, found here by bisection on cos(theta_o)
-// along each row, maps to the square coordinate s_x = 0.6 in every row, at
-// the slices and between them, for an isotropic file (rows relative to wi's
-// azimuth) and an anisotropic one (absolute rows; queried at its phi_i
-// slices, where the slices' own rows hold).
 // The automatic resolutions are the README's: isotropic 80 slices, a vndf
 // of 256 x 128 and values of 192 x 128; anisotropic slices of 64^2, 32
 // theta_i slices; a column count left automatic follows a row count given
@@ -296,6 +290,12 @@ TEST(RglWriter, AutomaticResolutionsAreTheDocumentedOnes) {
   }
 }
 
+// The vndf rows are aligned (formats/rgl_writer.h): the normal that
+// reflects wi onto the horizon, found here by bisection on cos(theta_o)
+// along each row, maps to the square coordinate s_x = 0.6 in every row, at
+// the slices and between them, for an isotropic file (rows relative to wi's
+// azimuth) and an anisotropic one (absolute rows; queried at its phi_i
+// slices, where the slices' own rows hold).
 TEST(RglWriter, RowsPutTheHorizonAtOneSquareCoordinate) {
   const Analytic g("lambert", "albedo=0.5");
   RglOptions iso, aniso;
