@@ -4,9 +4,10 @@
 //
 // A file is a tensor file (brdf/tensor_file.h) with the fields
 //   description u8 [n]              free text
-//   jacobian    u8 [1]              1: vndf is a density in the warped square
+//   jacobian    u8 [1]              1: the values are divided by the density (below); 0: they are f_r cos(theta_o)
 //   theta_i     f32 [n_theta]       incident elevations of the slices, radians
-//   phi_i       f32 [n_phi]         incident azimuths, radians; isotropic when n_phi <= 2
+//   phi_i       f32 [n_phi]         incident azimuths, radians; isotropic when n_phi <= 2; spanning
+//                                   2 pi / k from -pi (k = 1, 2, 4) in anisotropic files
 //   ndf         f32 [H, W]          D(wm) over the warped square of wm
 //   sigma       f32 [H', W']        projected area sigma(wi) = int D(m) <wi, m>+ dm over that of wi
 //   vndf        f32 [n_phi, n_theta, H'', W'']   the visible-normal density D_wi(wm) per slice
@@ -32,7 +33,15 @@
 //   s = V^-1(u_wm | phi_i, theta_i), the inverse of the vndf warp: the
 //       marginal-then-conditional CDF of the bilinear density (rows along
 //       u_y first, then u_x within the row), each slice normalised to one;
-//   f_r cos(theta_o) = value(s | phi_i, theta_i, c) ndf(u_wm) / (4 sigma(u_wi)).
+//   f_r cos(theta_o) = value(s | phi_i, theta_i, c) ndf(u_wm) / (4 sigma(u_wi)),
+//   the last factor only where jacobian is 1 (as Mitsuba 3 reads it; the
+//   reference loader powitacq and pbrt-v4 apply it whatever the flag).
+// Anisotropic files whose azimuth nodes span pi or pi / 2 (reduction k = 2
+// or 4) hold the BSDF of a symmetric material for part of the incident
+// azimuths; a query is first folded into them (RglBsdf::Fold), as Mitsuba
+// 3 does (powitacq and pbrt-v4 refuse such files).
+// The format's readers (Mitsuba 3, powitacq, pbrt-v4) require square value
+// and luminance tables (N = M); brdfkit reads any N x M.
 // Spectra reduce to linear sRGB by the CIE 1931 observer (brdf/cie.h).
 #pragma once
 
@@ -235,7 +244,13 @@ class Warp2D {
 class RglBsdf {
  public:
   bool isotropic = true;
+  // 1: the values are f_r cos(theta_o) over the density ndf / (4 sigma)
+  // (the reconstruction multiplies it back); 0: they are f_r cos(theta_o).
   bool jacobian = true;
+  // Anisotropic files whose phi_i nodes span 2 pi / k hold one k-th of the
+  // incident azimuths (k = reduction: 1, 2 or 4); queries are folded into
+  // it as Mitsuba 3's measured plugin folds them (Fold).
+  int reduction = 1;
   std::string description;
   std::vector<double> theta_i, phi_i;
   Warp2D ndf, sigma, vndf, values;  // values: slices (phi_i, theta_i, channel)
@@ -257,7 +272,8 @@ class RglBsdf {
   // colours of spectral files) are clipped to 0.
   Rgb<double> FrCos(const Eigen::Vector3d& wi_in, const Eigen::Vector3d& wo_in) const {
     if (!(wi_in.z() > 0 && wo_in.z() > 0)) return Rgb<double>::Zero();
-    const Eigen::Vector3d wi = wi_in.normalized(), wo = wo_in.normalized();
+    Eigen::Vector3d wi = wi_in.normalized(), wo = wo_in.normalized();
+    Fold(wi, wo);
     const Eigen::Vector3d wm = (wi + wo).normalized();
     const double theta_i_q = std::acos(std::min(wi.z(), 1.0)), phi_i_q = std::atan2(wi.y(), wi.x());
     const double theta_m = std::acos(std::min(wm.z(), 1.0)), phi_m = std::atan2(wm.y(), wm.x());
@@ -266,15 +282,32 @@ class RglBsdf {
     const double p[2] = {phi_i_q, theta_i_q};
     const Warp2D::SliceMix mix = vndf.Mix(p);
     const std::array<double, 2> s = vndf.Invert(umx, umy, mix);
-    const double s_ndf = ndf.Eval(umx, umy), s_sigma = sigma.Eval(uix, uiy);
-    if (!(s_sigma > 0)) return Rgb<double>::Zero();  // no visible microfacets: nothing reflects
-    const double scale = s_ndf / (4 * s_sigma);
+    double scale = 1;
+    if (jacobian) {
+      const double s_ndf = ndf.Eval(umx, umy), s_sigma = sigma.Eval(uix, uiy);
+      if (!(s_sigma > 0)) return Rgb<double>::Zero();  // no visible microfacets: nothing reflects
+      scale = s_ndf / (4 * s_sigma);
+    }
     Rgb<double> out;
     for (int c = 0; c < 3; ++c) {
       const double pc[3] = {phi_i_q, theta_i_q, double(c)};
       out[c] = std::max(values.Eval(s[0], s[1], values.Mix(pc)) * scale, 0.0);
     }
     return out;
+  }
+
+  // The symmetry reduction of the format's loaders (Mitsuba 3's measured
+  // plugin): with k = 2 the pair is turned by pi when wi.y >= +0, with k = 4
+  // each of x and y is negated when wi's is >= +0; wi then lies in the
+  // azimuths [-pi, -pi + 2 pi / k] that the file holds, wo moves with it.
+  void Fold(Eigen::Vector3d& wi, Eigen::Vector3d& wo) const {
+    if (reduction < 2) return;
+    const auto flip = [](double v, double sign_of) { return std::signbit(sign_of) ? v : -v; };
+    const double sy = wi.y(), sx = reduction == 4 ? wi.x() : sy;
+    wi.x() = flip(wi.x(), sx);
+    wi.y() = flip(wi.y(), sy);
+    wo.x() = flip(wo.x(), sx);
+    wo.y() = flip(wo.y(), sy);
   }
 
   Rgb<double> Fr(const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) const {
@@ -307,8 +340,8 @@ class RglBsdf {
             const std::array<double, 2> u = vndf.Sample(x / double(m_sample - 1), y / double(n_sample - 1), slice);
             const Eigen::Vector3d wm = Direction(UToTheta(u[0]), UToPhi(u[1]) + (isotropic ? phi : 0.0));
             const Eigen::Vector3d wo = 2 * wi.dot(wm) * wm - wi;
-            if (!(wo.z() > 1e-6) || !(sig > 0)) continue;  // grazing or invisible: no usable sample
-            const double scale = ndf.Eval(u[0], u[1]) / (4 * sig) / wo.z();
+            if (!(wo.z() > 1e-6) || (jacobian && !(sig > 0))) continue;  // grazing or invisible: no usable sample
+            const double scale = (jacobian ? ndf.Eval(u[0], u[1]) / (4 * sig) : 1.0) / wo.z();
             NodeSample ns{wi, wo, Rgb<double>::Zero()};
             for (int c = 0; c < 3; ++c) {
               const double pc[3] = {isotropic ? phi_i.front() : phi_i[a], theta_i[b], double(c)};
@@ -386,6 +419,18 @@ class RglBsdf {
     b.theta_i = nodes(field("theta_i", TensorFile::kF32, 1), 0, kPi / 2);
     b.phi_i = nodes(field("phi_i", TensorFile::kF32, 1), -2 * kPi, 2 * kPi);
     b.isotropic = b.phi_i.size() <= 2;
+    if (!b.isotropic) {
+      // The span of the azimuth nodes gives the symmetry reduction, as the
+      // format's loaders compute it.
+      const double span = b.phi_i.back() - b.phi_i.front();
+      b.reduction = static_cast<int>(std::lround(2 * kPi / span));
+      if (b.reduction != 1 && b.reduction != 2 && b.reduction != 4)
+        fail("phi_i", "spans " + std::to_string(span) + " rad, 2 pi / " + std::to_string(2 * kPi / span) +
+                          ": the format knows the spans 2 pi, pi and pi / 2 (symmetry reductions 1, 2 and 4)");
+      if (b.reduction > 1 && std::abs(b.phi_i.front() + kPi) > 1e-3)
+        fail("phi_i", "spans 2 pi / " + std::to_string(b.reduction) + " from " + std::to_string(b.phi_i.front()) +
+                          " rad: a reduced file holds the azimuths from -pi, where the format's loaders fold queries");
+    }
     const std::uint64_t np = b.phi_i.size(), nt = b.theta_i.size();
     b.ndf = table2d("ndf");
     b.sigma = table2d("sigma");

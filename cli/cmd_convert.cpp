@@ -24,9 +24,7 @@ void RegisterConvert(CLI::App& app) {
                   "RGL: incident elevation slices, denser toward grazing (default: 80 isotropic, 32 anisotropic)");
   cmd->add_option("--rgl-phi-i", o.rgl.phi_i, "RGL: incident azimuth slices; 0 isotropic (default: 24 for anisotropic sources)");
   cmd->add_option("--rgl-samples", o.rgl.samples,
-                  "RGL: value table nodes along the azimuth of the normal, per slice (default: 192 isotropic, 64 anisotropic)");
-  cmd->add_option("--rgl-samples-theta", o.rgl.samples_theta,
-                  "RGL: value table nodes along the elevation of the normal (default: as --rgl-samples if given, else 128 "
+                  "RGL: value table nodes per axis, per slice (square: the format's readers require it; default: 208 "
                   "isotropic, 64 anisotropic)");
   cmd->add_option("--rgl-vndf", o.rgl.vndf,
                   "RGL: vndf nodes along the azimuth of the normal (default: 256 isotropic, 64 anisotropic)");

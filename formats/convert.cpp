@@ -152,8 +152,7 @@ nlohmann::json WriteFormat(const std::string& path, const BrdfFunction& f, const
       const RglAccuracy acc = MeasureRglAccuracy(back, f);
       t.Write(path);
       j["resolution"] = {{"theta_i", r.theta_i}, {"theta_max_deg", r.theta_max_deg}, {"phi_i", r.phi_i},
-                         {"ndf", r.ndf}, {"sigma", r.sigma}, {"vndf", r.vndf}, {"vndf_theta", r.vndf_theta}, {"samples", r.samples},
-                         {"samples_theta", r.samples_theta}};
+                         {"ndf", r.ndf}, {"sigma", r.sigma}, {"vndf", r.vndf}, {"vndf_theta", r.vndf_theta}, {"samples", r.samples}};
       j["isotropic"] = r.phi_i == 0;
       j["reconstruction"] = {{"max_relative", acc.max_relative}, {"p99_relative", acc.p99_relative},
                              {"mean_relative", acc.mean_relative}, {"points", acc.points},

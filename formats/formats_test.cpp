@@ -3,10 +3,12 @@
 // format, and bad input.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <random>
 
 #include "brdf/astm.h"
 #include "brdf/merl.h"
@@ -156,18 +158,18 @@ TEST(RglWriter, NodesReproduceTheSource) {
 // 1 % for lambert and for GGX and Beckmann lobes of alpha 0.05 to 1. The mean
 // and the 99th percentile are bounded at 1.3 times what was measured
 // (bench/RESULTS.md). Towards grazing incidence, on the same grid extended
-// to theta_i = 83.75 and 86.25 degrees, the maxima are bounded at 1.5 % and
-// 5 % (measured at most 1.44 % and 4.1 %, both lambert; the rows that
+// to theta_i = 83.75 and 86.25 degrees, the maxima are bounded at 1.8 % and
+// 5 % (measured at most 1.64 % and 3.6 %, both lambert; the rows that
 // followed the horizon less closely reached 1.8 % and 23 %, GGX alpha 1).
 TEST(RglWriter, ReconstructionAccuracyAtTheDefaultResolution) {
   struct Case {
     const char* spec;
     const char* params;
     double mean, p99;
-  } cases[] = {{"lambert", "albedo=0.8", 0.00025, 0.0019},     {"ggx", "alpha=0.05", 8.7e-5, 0.00029},
-               {"ggx", "alpha=0.2", 0.000105, 0.00058},       {"ggx", "alpha=0.5", 0.0002, 0.0018},
-               {"ggx", "alpha=1", 0.00021, 0.002},            {"beckmann", "alpha=0.05", 0.00019, 0.0011},
-               {"beckmann", "alpha=0.5", 0.00016, 0.0016},    {"beckmann", "alpha=1", 0.0002, 0.0023}};
+  } cases[] = {{"lambert", "albedo=0.8", 0.0002, 0.00184},      {"ggx", "alpha=0.05", 8.6e-5, 0.000275},
+               {"ggx", "alpha=0.2", 7.8e-5, 0.00034},         {"ggx", "alpha=0.5", 0.000155, 0.00169},
+               {"ggx", "alpha=1", 0.00017, 0.00204},          {"beckmann", "alpha=0.05", 0.000193, 0.0011},
+               {"beckmann", "alpha=0.5", 0.00011, 0.00125},   {"beckmann", "alpha=1", 0.00016, 0.00197}};
   for (const Case& c : cases) {
     SCOPED_TRACE(std::string(c.spec) + " " + c.params);
     const Analytic g(c.spec, c.params);
@@ -177,7 +179,7 @@ TEST(RglWriter, ReconstructionAccuracyAtTheDefaultResolution) {
     EXPECT_LT(a.mean_relative, 1.3 * c.mean);
     EXPECT_LT(a.p99_relative, 1.3 * c.p99);
     EXPECT_LT(a.max_relative, 0.01);
-    EXPECT_LT(MeasureRglAccuracy(r, g.Function(), 85).max_relative, 0.015);
+    EXPECT_LT(MeasureRglAccuracy(r, g.Function(), 85).max_relative, 0.018);
     EXPECT_LT(MeasureRglAccuracy(r, g.Function(), 87.5).max_relative, 0.05);
   }
 }
@@ -247,8 +249,7 @@ TEST(RglWriter, ErrorFallsWithTheResolution) {
   half.ndf = 256;
   half.vndf = 128;
   half.vndf_theta = 64;
-  half.samples = 96;
-  half.samples_theta = 64;
+  half.samples = 104;
   const RglAccuracy coarse = MeasureRglAccuracy(RglBsdf::FromTensors(MakeRgl(g.Function(), half), "half"), g.Function());
   const RglAccuracy fine = MeasureRglAccuracy(RglBsdf::FromTensors(MakeRgl(g.Function(), RglOptions{}), "default"), g.Function());
   EXPECT_LT(fine.max_relative, 0.5 * coarse.max_relative);
@@ -256,37 +257,34 @@ TEST(RglWriter, ErrorFallsWithTheResolution) {
 }
 
 // The automatic resolutions are the README's: isotropic 80 slices, a vndf
-// of 256 x 128 and values of 192 x 128; anisotropic slices of 64^2, 32
-// theta_i slices; a column count left automatic follows a row count given
-// (a square table); what is given stays.
+// of 256 x 128 and values of 208^2; anisotropic slices of 64^2, 32 theta_i
+// slices; a vndf column count left automatic follows a row count given (a
+// square table); what is given stays.
 TEST(RglWriter, AutomaticResolutionsAreTheDocumentedOnes) {
-  // theta_i, vndf rows x columns, value rows x columns.
-  using Resolution = std::array<int, 5>;
-  const auto of = [](const RglOptions& o) {
-    return Resolution{o.theta_i, o.vndf, o.vndf_theta, o.samples, o.samples_theta};
-  };
+  // theta_i, vndf rows x columns, value nodes per axis.
+  using Resolution = std::array<int, 4>;
+  const auto of = [](const RglOptions& o) { return Resolution{o.theta_i, o.vndf, o.vndf_theta, o.samples}; };
   const RglOptions iso = WithDefaults({});
-  EXPECT_EQ(of(iso), (Resolution{80, 256, 128, 192, 128}));
+  EXPECT_EQ(of(iso), (Resolution{80, 256, 128, 208}));
   EXPECT_EQ(iso.ndf, 512);
   EXPECT_EQ(iso.sigma, 64);
   EXPECT_EQ(iso.phi_i, 0);
   RglOptions aniso;
   aniso.phi_i = 24;
-  EXPECT_EQ(of(WithDefaults(aniso)), (Resolution{32, 64, 64, 64, 64}));
+  EXPECT_EQ(of(WithDefaults(aniso)), (Resolution{32, 64, 64, 64}));
   for (int phi_i : {0, 24}) {
     SCOPED_TRACE(phi_i);
-    const int rows = phi_i == 0 ? 192 : 64, vndf_rows = phi_i == 0 ? 256 : 64;
+    const int values = phi_i == 0 ? 208 : 64, vndf_rows = phi_i == 0 ? 256 : 64;
     RglOptions given;  // rows given, columns automatic: square tables
     given.phi_i = phi_i;
     given.theta_i = 7;
     given.vndf = 100;
     given.samples = 50;
-    EXPECT_EQ(of(WithDefaults(given)), (Resolution{7, 100, 100, 50, 50}));
+    EXPECT_EQ(of(WithDefaults(given)), (Resolution{7, 100, 100, 50}));
     given = {};  // columns given, rows automatic: the default rows
     given.phi_i = phi_i;
     given.vndf_theta = 30;
-    given.samples_theta = 20;
-    EXPECT_EQ(of(WithDefaults(given)), (Resolution{phi_i == 0 ? 80 : 32, vndf_rows, 30, rows, 20}));
+    EXPECT_EQ(of(WithDefaults(given)), (Resolution{phi_i == 0 ? 80 : 32, vndf_rows, 30, values}));
   }
 }
 
@@ -299,7 +297,7 @@ TEST(RglWriter, AutomaticResolutionsAreTheDocumentedOnes) {
 TEST(RglWriter, RowsPutTheHorizonAtOneSquareCoordinate) {
   const Analytic g("lambert", "albedo=0.5");
   RglOptions iso, aniso;
-  iso.samples = iso.samples_theta = 16;  // the vndf alone is measured: the default one
+  iso.samples = 16;  // the vndf alone is measured: the default one
   aniso.phi_i = 9;
   aniso.samples = 16;
   for (const RglOptions& o : {iso, aniso}) {
@@ -476,6 +474,74 @@ TEST(Formats, BadRglFilesAreNamed) {
               {ps, "'sigma'", "non-finite"});
   ExpectError(mutate("ndf", [](TensorFile::Field& f) { f.bytes[3] = 0xbf; }), {ps, "'ndf'", "negative"});
   ExpectError(mutate("rgb", [](TensorFile::Field& f) { f.name = "rgbx"; }), {ps, "neither"});
+}
+
+// A file may hold a part of the incident azimuths of a symmetric material:
+// phi_i nodes spanning pi / 2 from -pi (the format's symmetry reduction 4,
+// a material symmetric under x -> -x and y -> -y). Cut from a whole file of
+// an orthotropic GGX lobe (nodes every 45 degrees), the quarter reads in
+// every quadrant as the whole file does: each query folded into the quarter
+// by the mirrors (a turn by pi would send the second and fourth quadrants
+// to the wrong one). The bad spans are named.
+TEST(RglReader, AQuarterOfTheAzimuthsServesEveryQuadrant) {
+  const Analytic g("ggx_aniso", "alpha_x=0.2,alpha_y=0.5");
+  RglOptions o = Small();
+  o.phi_i = 9;
+  o.theta_i = 8;
+  // Azimuth nodes every 7.5 (vndf, values), 2.8 (ndf) and 11.25 degrees
+  // (sigma): the mirrors map each table's nodes onto its nodes.
+  o.vndf = o.samples = 49;
+  o.ndf = 129;
+  o.sigma = 33;
+  const TensorFile whole = MakeRgl(g.Function(), o);
+  auto cut = [&](std::size_t keep) {
+    TensorFile t = whole;
+    for (auto& f : t.fields)
+      if (f.name == "phi_i" || f.name == "vndf" || f.name == "luminance" || f.name == "rgb") {
+        const std::size_t per = f.Count() / f.shape[0];
+        f.shape[0] = keep;
+        f.bytes.resize(keep * per * 4);
+      }
+    return t;
+  };
+  const RglBsdf all = RglBsdf::FromTensors(whole, "whole"), quarter = RglBsdf::FromTensors(cut(3), "quarter");
+  EXPECT_EQ(all.reduction, 1);
+  ASSERT_EQ(quarter.reduction, 4);
+  EXPECT_NEAR(quarter.phi_i.back(), -kPi / 2, 1e-6);
+  const RglBsdf half = RglBsdf::FromTensors(cut(5), "half");
+  EXPECT_EQ(half.reduction, 2);
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> uniform(0, 1);
+  for (int quadrant = 0; quadrant < 4; ++quadrant) {
+    SCOPED_TRACE(quadrant);
+    std::vector<double> to_whole, to_source;
+    for (int k = 0; k < 4000; ++k) {
+      const double phi = -kPi + (quadrant + uniform(rng)) * kPi / 2;
+      const Eigen::Vector3d wi = RglBsdf::Direction(1.2 * uniform(rng), phi);
+      const Eigen::Vector3d wo = RglBsdf::Direction(1.2 * uniform(rng), 2 * kPi * uniform(rng));
+      const double want = g.Function()(wi, wo)[1] * wo.z(), got = quarter.FrCos(wi, wo)[1];
+      if (want < 0.05) continue;
+      to_whole.push_back(std::abs(got / all.FrCos(wi, wo)[1] - 1));
+      to_source.push_back(std::abs(got / want - 1));
+    }
+    ASSERT_GT(to_whole.size(), 500u);
+    std::sort(to_whole.begin(), to_whole.end());
+    std::sort(to_source.begin(), to_source.end());
+    EXPECT_LT(to_whole[to_whole.size() / 2], 1e-5);
+    EXPECT_LT(to_whole[to_whole.size() * 99 / 100], 1e-3);
+    EXPECT_LT(to_source[to_source.size() / 2], 0.01);
+  }
+  ExpectError([&] { RglBsdf::FromTensors(cut(4), "three eighths"); }, {"three eighths", "'phi_i'", "spans"});
+  TensorFile shifted = cut(3);
+  for (auto& f : shifted.fields)
+    if (f.name == "phi_i") {
+      std::vector<float> v = TensorFile::Floats(f);
+      for (float& x : v) x += 0.5f;
+      shifted.Add("phi_i_shifted", v, {v.size()});
+      f.bytes = shifted.fields.back().bytes;
+      shifted.fields.pop_back();
+    }
+  ExpectError([&] { RglBsdf::FromTensors(shifted, "shifted"); }, {"shifted", "'phi_i'", "from -pi"});
 }
 
 TEST(Formats, BadUtiaAndAstmFilesAreNamed) {

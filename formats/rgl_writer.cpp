@@ -193,13 +193,12 @@ RglOptions WithDefaults(RglOptions o) {
   // 512 ndf nodes the steep tails of rough Beckmann lobes). Anisotropic
   // files store the vndf and values once per phi_i slice: 24 x 32 slices of
   // 64^2.
-  // Columns left automatic follow rows given explicitly (a square table).
+  // vndf columns left automatic follow rows given explicitly (a square table).
   const bool iso = o.phi_i == 0;
   if (o.theta_i == 0) o.theta_i = iso ? 80 : 32;
   if (o.vndf_theta == 0) o.vndf_theta = o.vndf != 0 ? o.vndf : iso ? 128 : 64;
   if (o.vndf == 0) o.vndf = iso ? 256 : 64;
-  if (o.samples_theta == 0) o.samples_theta = o.samples != 0 ? o.samples : iso ? 128 : 64;
-  if (o.samples == 0) o.samples = iso ? 192 : 64;
+  if (o.samples == 0) o.samples = iso ? 208 : 64;
   return o;
 }
 
@@ -212,7 +211,7 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
             " (closer to grazing a slice has no room for the horizon's band and the rest)");
   const std::pair<const char*, int> resolutions[] = {
       {"ndf", o.ndf},         {"sigma", o.sigma},     {"vndf", o.vndf},
-      {"vndf_theta", o.vndf_theta}, {"samples", o.samples}, {"samples_theta", o.samples_theta}};
+      {"vndf_theta", o.vndf_theta}, {"samples", o.samples}};
   for (const auto& [name, r] : resolutions)
     Check(r >= 2 && r <= 4096, std::string("resolution ") + name + " must be 2 to 4096, got " + std::to_string(r));
   const bool iso = o.phi_i == 0;
@@ -328,7 +327,7 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
     // its scale, about 0.7), neighbouring value columns lie du <= 1 / (0.25
     // k d (nx - 1)) apart, and the linear interpolation's relative error
     // du^2 d^2 / 8 stays below kValueTolerance.
-    const double k = 1 / (0.25 * double(o.samples_theta - 1) * std::sqrt(8 * kValueTolerance));
+    const double k = 1 / (0.25 * double(o.samples - 1) * std::sqrt(8 * kValueTolerance));
     const std::vector<double> variation = ValueVariation(f, ndf_table, wi, vy, vx);
     for (std::size_t i = 0; i < vy * vx; ++i) lobe[i] = std::max(lobe[i] / mass, k * variation[i]);
     // Rows of anisotropic files are absolute azimuths of wm.
@@ -342,8 +341,7 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
   const Warp2D vndf_warp(vndf, vy, vx, {phi_nodes, theta_nodes}, true);
 
   // 4. values: ny rows x nx columns per slice, a slice per task.
-  const std::size_t ny = static_cast<std::size_t>(o.samples), nx = static_cast<std::size_t>(o.samples_theta),
-                    plane = ny * nx;
+  const std::size_t ny = static_cast<std::size_t>(o.samples), nx = ny, plane = ny * nx;
   std::vector<float> rgb(np * nt * 3 * plane), lum(np * nt * plane);
   tbb::parallel_for(std::size_t{0}, np * nt, [&](std::size_t slice) {
     const std::size_t a = slice / nt, b = slice % nt;

@@ -34,7 +34,7 @@
 //     lobe to the other elsewhere than f does), the visible normals are
 //     raised to a density that keeps the linear interpolation's relative
 //     error there near 0.15 %;
-//  4. rgb at the uniform N x M nodes s of each slice: wm = V(s), the warp of
+//  4. rgb at the uniform N x N nodes s of each slice: wm = V(s), the warp of
 //     the float32 vndf as the reader builds it, wo the reflection of wi
 //     about wm, value = f(wi, wo) cos(theta_o) 4 sigma(wi) / D(wm) with
 //     sigma and D the reader's bilinear values; below the horizon the value
@@ -77,8 +77,10 @@ struct RglOptions {
   int sigma = 64;            // sigma resolution (square)
   int vndf = 0;              // vndf rows per slice (azimuth of wm); 0: 256 isotropic, 64 anisotropic
   int vndf_theta = 0;        // vndf columns per slice (elevation of wm); 0: as vndf if given, else 128 isotropic, 64 anisotropic
-  int samples = 0;           // value table rows per slice (azimuth); 0: 192 isotropic, 64 anisotropic
-  int samples_theta = 0;     // value table columns per slice (elevation); 0: as samples if given, else 128 isotropic, 64 anisotropic
+  // The value (rgb and luminance) tables are samples x samples per slice:
+  // the format's readers (Mitsuba 3's measured plugin, the reference loader
+  // powitacq, pbrt-v4) refuse tables that are not square.
+  int samples = 0;           // value table nodes per axis and slice; 0: 208 isotropic, 64 anisotropic
   std::string description = "written by brdfkit";
 };
 

@@ -401,7 +401,8 @@ def write(path, data, format=None, *, rgl=None, step_deg=5.0, phi_i=None, anisot
     rgl : dict, optional
         RGL resolutions, the convert command's --rgl-* options: theta_i,
         phi_i (0 isotropic; default 0, or 24 for an anisotropic model),
-        ndf, sigma, vndf, vndf_theta, samples, samples_theta.
+        ndf, sigma, vndf, vndf_theta, samples (the value tables are samples x
+        samples: the format's readers require square ones).
     step_deg : float
         ASTM and CSV grid step in degrees (0.5 to 45).
     phi_i : int, optional

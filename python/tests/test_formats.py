@@ -112,7 +112,7 @@ def test_bad_options_and_files_are_named_and_write_nothing(tmp):
         brdfkit.write(tmp / "x.astm", LAMBERT, step_deg=0.1)
     with pytest.raises(ValueError, match="step_deg must be a number of degrees, got 'x'"):
         brdfkit.write(tmp / "x.astm", LAMBERT, step_deg="x")
-    with pytest.raises(ValueError, match="unknown resolution 'rows' \\(known: .*samples_theta"):
+    with pytest.raises(ValueError, match="unknown resolution 'rows' \\(known: .*samples, sigma"):
         brdfkit.write(tmp / "x.bsdf", LAMBERT, rgl={"rows": 8})
     with pytest.raises(ValueError, match="phi_i must be a positive int"):
         brdfkit.write(tmp / "x.astm", LAMBERT, phi_i=0)

@@ -4,7 +4,11 @@ Jakob 2018 and the behaviour of the format's reference loader and Mitsuba's
 `measured` plugin): its own container parser, its own marginal-conditional
 warp (CDFs of the bilinear density, built per slice and blended linearly
 across the slices' parameters, inverted cell by cell), and the evaluation
-f_r cos(theta_o) = max(0, value(s)) ndf(u_m) / (4 sigma(u_i)).
+f_r cos(theta_o) = max(0, value(s)) ndf(u_m) / (4 sigma(u_i)), the last
+factor only where the file's jacobian flag is 1, after folding the query
+into the azimuths of a reduced anisotropic file (Mitsuba 3's measured
+plugin). Files brdfkit writes must also pass the structure checks of the
+format's loaders (Mitsuba 3, powitacq).
 
 The two must agree to rounding on files brdfkit writes and, more telling,
 on files written here with random tables of unequal shapes, which no choice
@@ -129,12 +133,29 @@ class ReferenceRgl:
         f = parse_tensor_file(raw)
         self.isotropic = len(f["phi_i"]) <= 2
         phi, theta = f["phi_i"], f["theta_i"]
+        self.jacobian = bool(f["jacobian"][0])
+        self.reduction = 1 if self.isotropic else int(np.rint(2 * np.pi / (float(phi[-1]) - float(phi[0]))))
         self.ndf = Marginal2D(f["ndf"], [], cdf=False)
         self.sigma = Marginal2D(f["sigma"], [], cdf=False)
         self.vndf = Marginal2D(f["vndf"], [phi, theta], cdf=True)
         self.rgb = Marginal2D(f["rgb"], [phi, theta, np.arange(3.0)], cdf=False)
 
+    def fold(self, wi, wo):
+        """A reduced file (2 pi / k of the azimuths from -pi) holds a
+        symmetric material: k = 2 turns the pair by pi where wi.y >= 0, k = 4
+        mirrors x where wi.x >= 0 and y where wi.y >= 0."""
+        if self.reduction < 2:
+            return wi, wo
+        wi, wo = wi.copy(), wo.copy()
+        flip_y = ~np.signbit(wi[:, 1])
+        flip_x = ~np.signbit(wi[:, 0]) if self.reduction == 4 else flip_y
+        for v in (wi, wo):
+            v[flip_x, 0] *= -1
+            v[flip_y, 1] *= -1
+        return wi, wo
+
     def fr_cos(self, wi, wo):
+        wi, wo = self.fold(wi, wo)
         wm = wi + wo
         wm /= np.linalg.norm(wm, axis=1)[:, None]
         theta_i, phi_i = np.arccos(wi[:, 2]), np.arctan2(wi[:, 1], wi[:, 0])
@@ -144,7 +165,7 @@ class ReferenceRgl:
         u_i = np.stack([theta2u(theta_i), phi2u(phi_i)], axis=1)
         u_m = np.stack([theta2u(theta_m), phi2u(phi_m - phi_i if self.isotropic else phi_m)], axis=1)
         s = self.vndf.invert(u_m, [phi_i, theta_i])
-        scale = self.ndf.eval(u_m, []) / (4 * self.sigma.eval(u_i, []))
+        scale = self.ndf.eval(u_m, []) / (4 * self.sigma.eval(u_i, [])) if self.jacobian else 1.0
         return np.stack([np.maximum(self.rgb.eval(s, [phi_i, theta_i, np.full(len(wi), c)]), 0) * scale
                          for c in range(3)], axis=1)
 
@@ -159,10 +180,9 @@ def directions(n, seed):
 
 @pytest.mark.parametrize("source,rgl", [
     (brdfkit.Model("ggx", {"alpha": 0.2, "f0": (0.9, 0.5, 0.2)}),
-     {"theta_i": 9, "ndf": 48, "sigma": 16, "vndf": 24, "vndf_theta": 20, "samples": 18, "samples_theta": 14}),
+     {"theta_i": 9, "ndf": 48, "sigma": 16, "vndf": 24, "vndf_theta": 20, "samples": 18}),
     (brdfkit.Model("lambert+ggx_aniso", {"lambert.albedo": 0.3, "ggx_aniso.alpha_x": 0.15, "ggx_aniso.alpha_y": 0.4}),
-     {"theta_i": 6, "phi_i": 7, "ndf": 40, "sigma": 12, "vndf": 16, "vndf_theta": 12, "samples": 12,
-      "samples_theta": 10}),
+     {"theta_i": 6, "phi_i": 7, "ndf": 40, "sigma": 12, "vndf": 16, "vndf_theta": 12, "samples": 12}),
 ])
 def test_files_brdfkit_writes_reconstruct_as_the_reference_computes(tmp, source, rgl):
     path = tmp / "written.bsdf"
@@ -181,16 +201,17 @@ def test_files_brdfkit_writes_reconstruct_as_the_reference_computes(tmp, source,
     assert np.median(np.abs(got[big] / want[big] - 1)) < 1e-7
 
 
-@pytest.mark.parametrize("n_phi", [1, 2, 5])
-def test_random_tables_of_unequal_shapes_reconstruct_as_the_reference_computes(tmp, n_phi):
-    rng = np.random.default_rng(n_phi)
+@pytest.mark.parametrize("n_phi,reduction,jacobian", [(1, 1, 1), (2, 1, 1), (5, 1, 1), (5, 1, 0), (4, 2, 1), (3, 4, 0)])
+def test_random_tables_of_unequal_shapes_reconstruct_as_the_reference_computes(tmp, n_phi, reduction, jacobian):
+    rng = np.random.default_rng(n_phi + 10 * reduction + 100 * jacobian)
     theta = np.sort(rng.uniform(0.05, 1.45, 4)).astype(np.float32)
-    phi = np.linspace(-np.pi, np.pi, n_phi).astype(np.float32) if n_phi > 1 else np.zeros(1, np.float32)
+    phi = (np.linspace(-np.pi, -np.pi + 2 * np.pi / reduction, n_phi).astype(np.float32) if n_phi > 1
+           else np.zeros(1, np.float32))
     positive = lambda *shape: rng.uniform(0.2, 2.0, shape).astype(np.float32)
     rgb = rng.uniform(-1.0, 1.5, (n_phi, 4, 3, 6, 7)).astype(np.float32)  # negatives: out-of-gamut values, clipped
     fields = {
         "description": np.frombuffer(b"random tables", np.uint8),
-        "jacobian": np.array([1], np.uint8),
+        "jacobian": np.array([jacobian], np.uint8),
         "theta_i": theta, "phi_i": phi,
         "ndf": positive(9, 11), "sigma": positive(5, 4),
         "vndf": positive(n_phi, 4, 7, 5),
@@ -199,6 +220,7 @@ def test_random_tables_of_unequal_shapes_reconstruct_as_the_reference_computes(t
     path = tmp / "random.bsdf"
     path.write_bytes(tensor_file_bytes(fields))
     ref = ReferenceRgl(path.read_bytes())
+    assert ref.reduction == reduction
     wi, wo = directions(20000, seed=n_phi + 20)
     want, got = ref.fr_cos(wi, wo), brdfkit_fr_cos(path, wi, wo)
     assert (want > 0).mean() > 0.5 and (want == 0).mean() > 0.1  # both sides of the clipping
@@ -223,3 +245,51 @@ def test_the_test_parser_reads_what_brdfkit_writes(tmp):
     assert len(tensor_file_bytes(f)) < len(path.read_bytes())
     for name, a in f.items():
         np.testing.assert_array_equal(again[name], a)
+
+
+def loaders_refuse(f):
+    """What the format's loaders would refuse in an RGB file ({name: array}):
+    the structure checks of Mitsuba 3's measured plugin (RGB variants) and of
+    the authors' loader powitacq_rgb, restated from their definitions:
+    dtypes and ranks, the slice axes of vndf, luminance and rgb, luminance
+    and rgb tables square and of one size, a one-byte jacobian, no
+    wavelengths (which would make the file spectral); powitacq also refuses
+    an anisotropic file whose azimuths span less than the circle."""
+    problems = []
+
+    def need(ok, what):
+        if not ok:
+            problems.append(what)
+
+    for name, ndim, dtype in [("description", 1, np.uint8), ("jacobian", 1, np.uint8), ("theta_i", 1, np.float32),
+                              ("phi_i", 1, np.float32), ("ndf", 2, np.float32), ("sigma", 2, np.float32),
+                              ("vndf", 4, np.float32), ("luminance", 4, np.float32), ("rgb", 5, np.float32)]:
+        need(name in f and f[name].ndim == ndim and f[name].dtype == dtype, f"{name}: rank {ndim}, {dtype.__name__}")
+    if problems:
+        return problems
+    n_phi, n_theta = len(f["phi_i"]), len(f["theta_i"])
+    vndf, lum, rgb = f["vndf"].shape, f["luminance"].shape, f["rgb"].shape
+    need(vndf[:2] == (n_phi, n_theta), "vndf slices")
+    need(lum[:2] == (n_phi, n_theta) and lum[2] == lum[3], "luminance: slices, square")
+    need(rgb[:3] == (n_phi, n_theta, 3) and rgb[3] == rgb[4], "rgb: slices, 3 channels, square")
+    need(lum[2:] == rgb[3:], "luminance and rgb of one size")
+    need(f["jacobian"].shape == (1,), "jacobian: one byte")
+    need("wavelengths" not in f, "no wavelengths in an RGB file")
+    if n_phi > 2:
+        need(np.rint(2 * np.pi / (float(f["phi_i"][-1]) - float(f["phi_i"][0]))) == 1, "azimuths over the circle")
+    return problems
+
+
+@pytest.mark.parametrize("source,rgl", [
+    (brdfkit.Model("lambert", {"albedo": 0.5}), None),  # the default isotropic resolution
+    (brdfkit.Model("ggx_aniso", {"alpha_x": 0.1, "alpha_y": 0.3}),
+     {"theta_i": 4, "ndf": 16, "sigma": 8, "vndf": 12, "vndf_theta": 10, "samples": 9}),
+])
+def test_the_format_loaders_accept_what_brdfkit_writes(tmp, source, rgl):
+    path = tmp / "written.bsdf"
+    brdfkit.write(path, source, rgl=rgl)
+    f = parse_tensor_file(path.read_bytes())
+    assert loaders_refuse(f) == []
+    # The check itself refuses the tables brdfkit wrote before they were square.
+    f["rgb"], f["luminance"] = f["rgb"][..., :-1], f["luminance"][..., :-1]
+    assert loaders_refuse(f) == ["luminance: slices, square", "rgb: slices, 3 channels, square"]
