@@ -537,9 +537,9 @@ TEST(RglReader, AQuarterOfTheAzimuthsServesEveryQuadrant) {
     if (f.name == "phi_i") {
       std::vector<float> v = TensorFile::Floats(f);
       for (float& x : v) x += 0.5f;
-      shifted.Add("phi_i_shifted", v, {v.size()});
-      f.bytes = shifted.fields.back().bytes;
-      shifted.fields.pop_back();
+      TensorFile nodes;
+      nodes.Add("phi_i", v, {v.size()});
+      f.bytes = nodes.fields.front().bytes;
     }
   ExpectError([&] { RglBsdf::FromTensors(shifted, "shifted"); }, {"shifted", "'phi_i'", "from -pi"});
 }
