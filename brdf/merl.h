@@ -252,10 +252,8 @@ class MerlTable {
   }
 
   // Throws std::runtime_error naming the file: missing file, a directory,
-  // wrong size, wrong header dimensions, non-finite values. `storage` holds
-  // the values when its capacity suffices (a caller may have asked the
-  // kernel for huge pages for it); its contents are overwritten.
-  static MerlTable Read(const std::string& path, std::vector<double> storage = {}) {
+  // wrong size, wrong header dimensions, non-finite values.
+  static MerlTable Read(const std::string& path) {
     namespace fs = std::filesystem;
     const std::string what = "MERL file '" + path + "'";
     std::error_code ec;
@@ -286,7 +284,8 @@ class MerlTable {
       throw std::runtime_error(what + " is " + (size < kFileSize ? "truncated" : "over-long") + ": " +
                                std::to_string(size) + " bytes, expected " + std::to_string(kFileSize) +
                                " (12-byte header + 3 x 90 x 90 x 180 float64)");
-    MerlTable t(std::move(storage));
+    MerlTable t;
+    t.values.resize(3 * kCells);
     if (!in.read(reinterpret_cast<char*>(t.values.data()), std::streamsize(3 * kCells * sizeof(double))))
       throw std::runtime_error("cannot read " + what + ": read failed after the header");
     if constexpr (std::endian::native == std::endian::big)
@@ -403,10 +402,6 @@ class MerlTable {
   }
 
  private:
-  // A table of 3 x kCells zeros held in `storage`, whose memory is
-  // reused when its capacity suffices.
-  explicit MerlTable(std::vector<double>&& storage) : values(std::move(storage)) { values.resize(3 * kCells); }
-
   // h, theta_h and the difference vector d = (dx, dy, dz) of wi. d is
   // computed from (wi - wo) / 2, whose rotation into the half frame is
   // (dx, dy, 0) because wo is the mirror of wi about h, and dz = cos theta_d

@@ -213,23 +213,6 @@ TEST(MerlCoordinates, RusinkiewiczRoundTrip) {
 
 // Swapping wi and wo turns d into its mirror about h (phi_d + pi); the fold
 // maps both to the same angles, bit for bit, so lookups are exactly reciprocal.
-// Read into given storage: the values land in that memory, the same as a
-// plain read; storage too small for the table is replaced.
-TEST_F(MerlFile, ReadIntoGivenStorage) {
-  const Table plain = Table::Read(*path_);
-  std::vector<double> storage;
-  storage.reserve(3 * Table::kCells);
-  storage.push_back(7.0);
-  const double* memory = storage.data();
-  const Table t = Table::Read(*path_, std::move(storage));
-  EXPECT_EQ(t.values.data(), memory);
-  EXPECT_EQ(t.values, plain.values);
-  std::vector<double> small(10, 7.0);
-  EXPECT_EQ(Table::Read(*path_, std::move(small)).values, plain.values);
-  ExpectThrowNaming([&] { Table::Read((*dir_ / "none.binary").string(), std::vector<double>(4)); },
-                    (*dir_ / "none.binary").string(), "no such file");
-}
-
 TEST_F(MerlFile, ReciprocityFolding) {
   std::mt19937_64 rng(3);
   for (int n = 0; n < 20000; ++n) {

@@ -8,10 +8,6 @@
 
 #include <tbb/parallel_for.h>
 
-#if defined(__linux__)
-#include <sys/mman.h>
-#endif
-
 #include "brdf/astm.h"
 #include "brdf/merl.h"
 #include "brdf/params.h"
@@ -44,19 +40,6 @@ bool LooksLikeMerl(const std::string& path) {
 
 }  // namespace
 
-void AdviseHugePages(const void* p, std::size_t bytes) {
-#if defined(__linux__) && defined(MADV_HUGEPAGE)
-  constexpr std::uintptr_t kHuge = std::uintptr_t(2) << 20;
-  const std::uintptr_t begin = (reinterpret_cast<std::uintptr_t>(p) + kHuge - 1) & ~(kHuge - 1);
-  const std::uintptr_t end = (reinterpret_cast<std::uintptr_t>(p) + bytes) & ~(kHuge - 1);
-  // Advice only: a kernel without THP refuses it and pages stay 4 KiB.
-  if (end > begin) madvise(reinterpret_cast<void*>(begin), end - begin, MADV_HUGEPAGE);
-#else
-  (void)p;
-  (void)bytes;
-#endif
-}
-
 Dataset FromTable(const synth::BrdfTable& table, const std::string& source) {
   Dataset d;
   d.source = source;
@@ -73,16 +56,14 @@ Dataset FromMerl(const MerlTable& table, const std::string& source) {
   d.source = source;
   // Room for every cell: no reallocation (a transient second copy), and the
   // pages of cells below the horizon are never touched, so never resident.
-  ReserveHuge(d.samples, MerlTable::kCells);
+  d.samples.reserve(MerlTable::kCells);
   // Rows of theta_h are converted in parallel a block at a time and appended
   // in order: the samples keep the table's order, and the rows held besides
   // the result are one block's (a tenth of the data), not a second copy.
-  // One buffer holds a block's rows, a row's room each, on huge pages.
+  // One buffer holds a block's rows, a row's room each.
   constexpr int kBlock = 9;
   constexpr std::size_t kRow = std::size_t(MerlTable::kThetaD) * MerlTable::kPhiD;
-  std::vector<Sample> rows;
-  ReserveHuge(rows, kBlock * kRow);
-  rows.resize(kBlock * kRow);
+  std::vector<Sample> rows(kBlock * kRow);
   std::vector<std::size_t> kept(kBlock, 0), missing(kBlock, 0);
   for (int first = 0; first < MerlTable::kThetaH; first += kBlock) {
     const int count = std::min(kBlock, MerlTable::kThetaH - first);
@@ -176,11 +157,7 @@ Dataset LoadDataset(const std::string& path) {
   else if (ext == ".astm")
     d = FromAngleSamples(AstmTable::Read(path).rows, path);
   else if (ext == ".binary" || (regular && LooksLikeMerl(path))) {
-    // The table's 35 MB on huge pages: faulted in 4 KiB at a time they cost
-    // more than the read itself.
-    std::vector<double> storage;
-    ReserveHuge(storage, 3 * MerlTable::kCells);
-    d = FromMerl(MerlTable::Read(path, std::move(storage)), path);
+    d = FromMerl(MerlTable::Read(path), path);
   } else
     d = FromTable(synth::ReadTableCsv(path), path);
   const std::string side = path + ".json";

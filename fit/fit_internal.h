@@ -43,17 +43,6 @@ std::string Expected(const std::vector<E>& all, NameOf name_of) {
   return s;
 }
 
-// Reserves room for n elements of v, asking the kernel (Linux) to back the
-// whole 2 MiB pages of it with transparent huge pages: the arrays of a
-// MERL-size fit span 200 MiB, and faulting them in 4 KiB at a time cost a
-// third of a one-lobe fit's time. Nothing is touched; elsewhere a no-op.
-void AdviseHugePages(const void* p, std::size_t bytes);
-template <typename V>
-void ReserveHuge(V& v, std::size_t n) {
-  v.reserve(n);
-  AdviseHugePages(v.data(), v.capacity() * sizeof(typename V::value_type));
-}
-
 // ---------------------------------------------------------------------------
 // Samples and metrics (metrics.cpp).
 

@@ -85,7 +85,7 @@ double MaxThetaRad(const Options& o) {
 Selection Select(const Dataset& data, const Options& o) {
   Selection s;
   const double cos_max = std::cos(MaxThetaRad(o));
-  ReserveHuge(s.index, data.samples.size());
+  s.index.reserve(data.samples.size());
   // 1e-12 of slack keeps samples written at exactly the cut.
   for (std::size_t k = 0; k < data.samples.size(); ++k) {
     const Sample& x = data.samples[k];
@@ -111,14 +111,11 @@ Prepared Prepare(const Dataset& data, std::vector<std::size_t> index, const Opti
                        [&](std::size_t k) { return unit(data.samples[k].wi) && unit(data.samples[k].wo); });
   p.consecutive = true;
   for (std::size_t q = 1; q < n && p.consecutive; ++q) p.consecutive = p.index[q] == p.index[0] + q;
-  ReserveHuge(p.target, n);
   p.target.resize(n);
   if (!unit_weights) {
-    ReserveHuge(p.w_fit, n);
     p.w_fit.resize(n);
   }
   if (sigma) {
-    ReserveHuge(p.w_metric, n);
     p.w_metric.resize(n);
   }
   // Relative metric: a floor keeps near-zero reference values from
@@ -154,11 +151,11 @@ Prepared Rows(const Prepared& p, const std::vector<std::size_t>& rows) {
   auto own = std::make_shared<Dataset>();
   own->has_sigma = p.data->has_sigma;
   own->source = p.data->source;
-  ReserveHuge(own->samples, rows.size());
+  own->samples.reserve(rows.size());
   out.unit = p.unit;
   out.consecutive = true;  // its own rows, in order
-  ReserveHuge(out.index, rows.size());
-  ReserveHuge(out.target, rows.size());
+  out.index.reserve(rows.size());
+  out.target.reserve(rows.size());
   if (!p.w_fit.empty()) out.w_fit.reserve(rows.size());
   if (!p.w_metric.empty()) out.w_metric.reserve(rows.size());
   for (std::size_t q : rows) {
@@ -256,7 +253,7 @@ void RelativeErrors(const Engine& e, const Prepared& d, const std::vector<double
   const Eigen::Array3d floor = (1e-3 * mean / double(std::max<std::size_t>(n, 1))).max(1e-300);
   constexpr std::size_t kBands = std::size(kThetaHBandEdgesDeg) - 1;
   // Each sample's theta_h band, counted block by block; then its three
-  // errors, written grouped by band (26 MB for a MERL table, on huge pages):
+  // errors, written grouped by band (26 MB for a MERL table, in one buffer):
   // a block's samples of band b go after those of band b in earlier blocks.
   static_assert(kBands <= 256, "a band number fits a byte");
   constexpr std::size_t kBlock = 4096;
@@ -282,7 +279,6 @@ void RelativeErrors(const Engine& e, const Prepared& d, const std::vector<double
   }
   first[kBands] = next;
   std::vector<double> grouped;
-  ReserveHuge(grouped, 3 * n);
   grouped.resize(3 * n);
   tbb::parallel_for(std::size_t{0}, blocks, [&](std::size_t k) {
     const std::size_t begin = k * kBlock, end = std::min(n, begin + kBlock);
