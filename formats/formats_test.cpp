@@ -152,6 +152,44 @@ TEST(RglWriter, NodesReproduceTheSource) {
   EXPECT_LT(worst, 1e-4);
 }
 
+// The loaders normalise each luminance slice by its sum (Mitsuba 3 by 1 /
+// sum, unguarded): a slice of a black source gets a uniform density, its
+// values stay 0 and read 0; the other slices keep the values' luminance.
+TEST(RglWriter, BlackSlicesGetAUniformSamplingDensity) {
+  const BrdfFunction dark_beyond_60 = [](const Eigen::Vector3d& wi, const Eigen::Vector3d&) {
+    return Rgb<double>(Rgb<double>::Constant(wi.z() > 0.5 ? 0.4 / kPi : 0.0));
+  };
+  const TensorFile t = MakeRgl(dark_beyond_60, Small());
+  const std::vector<float> theta = TensorFile::Floats(*t.Find("theta_i")),
+                           lum = TensorFile::Floats(*t.Find("luminance")), rgb = TensorFile::Floats(*t.Find("rgb"));
+  const std::size_t plane = 48 * 48;
+  ASSERT_EQ(lum.size(), theta.size() * plane);
+  std::size_t black = 0;
+  for (std::size_t s = 0; s < theta.size(); ++s) {
+    const bool dark = std::cos(double(theta[s])) <= 0.5;
+    black += dark;
+    for (std::size_t k = 0; k < plane; ++k) {
+      const float* v = rgb.data() + (s * 3) * plane + k;
+      const double l = std::max(0.0, 0.2126 * v[0] + 0.7152 * v[plane] + 0.0722 * v[2 * plane]);
+      if (dark) {
+        ASSERT_EQ(v[0], 0.0f);
+        ASSERT_EQ(lum[s * plane + k], 1.0f) << "slice " << s;
+      } else {
+        ASSERT_NEAR(lum[s * plane + k], l, 1e-6 * std::max(l, 1.0)) << "slice " << s;
+      }
+    }
+  }
+  EXPECT_GE(black, 3u);
+  const RglBsdf r = RglBsdf::FromTensors(t, "test");
+  EXPECT_EQ(r.FrCos(Dir(1.4, 0), Dir(0.5, 2)).maxCoeff(), 0.0);
+  EXPECT_NEAR(r.FrCos(Dir(0.3, 0), Dir(0.5, 2))[1], 0.4 / kPi * std::cos(0.5), 1e-3);
+  // A source black everywhere: every slice uniform.
+  const TensorFile all_black =
+      MakeRgl([](const Eigen::Vector3d&, const Eigen::Vector3d&) { return Rgb<double>(Rgb<double>::Zero()); }, Small());
+  const std::vector<float> l0 = TensorFile::Floats(*all_black.Find("luminance"));
+  EXPECT_TRUE(std::all_of(l0.begin(), l0.end(), [](float v) { return v == 1.0f; }));
+}
+
 // At the default resolution, on the measure's grid (theta_i = 1.25, 3.75,
 // ... 78.75 degrees, wo on a 1 x 2 degree grid up to theta_o = 89.5
 // degrees, where f cos(theta_o) is above 1 % of its maximum over wo): within

@@ -366,6 +366,11 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
         for (int c = 0; c < 3; ++c) rgb[(slice * 3 + c) * plane + y * nx + x] = static_cast<float>(v[c]);
         lum[slice * plane + y * nx + x] = static_cast<float>(std::max(Luminance(v), 0.0));  // a sampling density
       }
+    // A slice whose values are all black (a black source) gets a uniform
+    // sampling density: the loaders normalise each slice by its sum (Mitsuba
+    // 3 by 1 / sum unguarded) and would read NaN for all of it.
+    float* l = lum.data() + slice * plane;
+    if (std::all_of(l, l + plane, [](float v) { return v == 0; })) std::fill(l, l + plane, 1.0f);
   });
 
   TensorFile t;
