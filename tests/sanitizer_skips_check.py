@@ -22,6 +22,7 @@ import concurrent.futures
 import fnmatch
 import glob
 import os
+import queue
 import shutil
 import subprocess
 import sys
@@ -104,8 +105,8 @@ def run(cmd, profile_dir, cwd, cpu=None):
     profile_dir; returns an error message, or None."""
     os.makedirs(profile_dir, exist_ok=True)
     env = profile_env(profile_dir)
-    # One core per skipped test: the coverage counters are shared by all
-    # threads, and several threads incrementing them slow a run tenfold.
+    # One core per run: the coverage counters are shared by all threads, and
+    # several threads incrementing them from several cores slow a run tenfold.
     if cpu is not None and shutil.which('taskset'):
         cmd = ['taskset', '-c', str(cpu)] + cmd
     r = subprocess.run(cmd, cwd=cwd, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
@@ -113,6 +114,23 @@ def run(cmd, profile_dir, cwd, cpu=None):
     if r.returncode != 0:
         return f'{" ".join(cmd)} failed (exit {r.returncode}):\n{r.stdout[-4000:]}'
     return None
+
+
+def side_by_side(jobs, cores):
+    """Runs jobs (command, profile_dir, cwd) on as many cores at once, each
+    pinned to a core no other running job holds; returns their errors."""
+    free = queue.Queue()
+    for cpu in sorted(os.sched_getaffinity(0))[:cores]:
+        free.put(cpu)
+
+    def one(job):
+        cpu = free.get()
+        try:
+            return run(*job, cpu=cpu)
+        finally:
+            free.put(cpu)
+    with concurrent.futures.ThreadPoolExecutor(cores) as pool:
+        return list(pool.map(one, jobs))
 
 
 def coverage(profile_dir, objects):
@@ -168,9 +186,14 @@ def main():
     objects = [os.path.join(args.tree, 'brdfkit'), os.path.join(args.tree, 'brdfkit_extended')] + \
               [os.path.join(tests_dir, e) for e in EXECUTABLES]
     negative = ':'.join(s for s in skips if '.' in s)
-    for exe in EXECUTABLES:
-        error = run([os.path.join(tests_dir, exe), f'--gtest_filter=-{negative}'], os.path.join(work, 'kept'),
-                    tests_dir)
+    # The kept runs side by side, each on a core of its own (as the listed
+    # tests below): threads of one run on several cores contend for the
+    # coverage counters. fit_tests, the longest, first.
+    cores = max(1, min(args.jobs, len(os.sched_getaffinity(0))))
+    kept = sorted(EXECUTABLES, key=lambda e: e != 'fit_tests')
+    errors = side_by_side([([os.path.join(tests_dir, e), f'--gtest_filter=-{negative}'], os.path.join(work, 'kept'),
+                            tests_dir) for e in kept], cores)
+    for error in errors:
         if error:
             fail(error)
     # ctest-level stages the sanitizer tree runs and the list does not skip.
@@ -193,11 +216,8 @@ def main():
         else:
             fail(f'{args.list}: "{name}" is neither a test of {", ".join(EXECUTABLES)} nor a ctest stage')
     # The listed tests run side by side, each on a core of its own.
-    cpus = sorted(os.sched_getaffinity(0))
-    cores = max(1, min(args.jobs, len(cpus)))
-    with concurrent.futures.ThreadPoolExecutor(cores) as pool:
-        errors = list(pool.map(lambda k: run(commands[k][0], os.path.join(work, f'skip{k}'), commands[k][1],
-                                             cpu=cpus[k % cores]), range(len(skips))))
+    errors = side_by_side([(commands[k][0], os.path.join(work, f'skip{k}'), commands[k][1]) for k in range(len(skips))],
+                          cores)
     for error in errors:
         if error:
             fail(error)
