@@ -179,6 +179,10 @@ def main():
         fail(f'--jobs: {args.jobs} is not between 1 and 256')
     sections = read_skips(args.list)
     skips = [name for name, _ in sections]
+    only = [n for n in args.only.split(',') if n]
+    for name in only:
+        if name not in skips:
+            fail(f'--only: "{name}" is not in {args.list}')
     build(args.tree, args.jobs)
     tests_dir = os.path.join(args.tree, 'tests')
     work = tempfile.mkdtemp(prefix='brdfkit-skips-')
@@ -210,24 +214,18 @@ def main():
             fail(error)
     kept_lines, kept_branches = coverage(os.path.join(work, 'kept'), objects)
     print(f'kept tests: {len(kept_lines)} lines, {len(kept_branches)} branches')
-    only = [n for n in args.only.split(',') if n]
-    for name in only:
-        if name not in skips:
-            fail(f'--only: "{name}" is not in {args.list}')
-    commands, checked = [], []
-    for i, name in enumerate(skips):
-        if only and name not in only:
-            continue
-        checked.append(i)
+    checked = [i for i, name in enumerate(skips) if not only or name in only]
+    jobs = []
+    for i in checked:
+        name, profile = skips[i], os.path.join(work, f'skip{i}')
         if '.' in name and exe_of(name):
-            commands.append(([os.path.join(tests_dir, exe_of(name)), f'--gtest_filter={name}'], tests_dir))
+            jobs.append(([os.path.join(tests_dir, exe_of(name)), f'--gtest_filter={name}'], profile, tests_dir))
         elif '.' not in name and name in listed:
-            commands.append((['ctest', '--test-dir', args.tree, '-R', f'^{name}$'], args.tree))
+            jobs.append((['ctest', '--test-dir', args.tree, '-R', f'^{name}$'], profile, args.tree))
         else:
             fail(f'{args.list}: "{name}" is neither a test of {", ".join(EXECUTABLES)} nor a ctest stage')
     # The listed tests run side by side, each on a core of its own.
-    errors = side_by_side([(commands[k][0], os.path.join(work, f'skip{i}'), commands[k][1])
-                           for k, i in enumerate(checked)], cores)
+    errors = side_by_side(jobs, cores)
     for error in errors:
         if error:
             fail(error)
