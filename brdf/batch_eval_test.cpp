@@ -1,6 +1,7 @@
 // Bxdf<T>::EvalBatch against Eval, pair by pair, for every registered model
 // alone and in sums, in double and float, on every instruction set of the
-// vectorised kernels this processor has (brdf/batch.h). The measured models
+// vectorised kernels this processor has (brdf/batch.h); Bxdf<Jet>::EvalAt
+// against Eval. The measured models
 // read from files other than MERL's (rgl, utia, astm) are left to the
 // generic loop's test through merl: their writers live in formats/.
 #include <gtest/gtest.h>
@@ -112,6 +113,39 @@ void CheckModel(const Model& model, std::mt19937_64& rng) {
   }
 }
 
+// Bxdf<Jet>::EvalAt (double directions; the microfacet lobes keep the
+// directions' arithmetic in double) against Eval at the directions cast to
+// Jets: values and every derivative, to 1e-12 of the channel's largest
+// (Jet arithmetic with a double operand rounds derivatives differently, and
+// Beckmann's exp(-tan^2 / alpha^2) multiplies that by its exponent, up to
+// about 700), at the edge and random directions of Directions.
+void ExpectEvalAtEqualsEval(const Model& model, std::mt19937_64& rng) {
+  using Jet = JetN<4>;
+  const auto b = model.Make<Jet>();
+  const ModelInfo& info = model.Info();
+  const std::size_t n = 301;
+  const std::vector<double> wi = Directions(rng, n), wo = Directions(rng, n);
+  for (int round = 0; round < 3; ++round) {
+    const std::vector<double> pd = round == 0 ? info.Defaults() : test::RandomParams(info, rng, 0.0);
+    std::vector<Jet> p;
+    for (std::size_t k = 0; k < pd.size(); ++k) p.push_back(Jet(pd[k], static_cast<int>(k % 4)));
+    for (std::size_t k = 0; k < n; ++k) {
+      const Eigen::Vector3d a(wi[3 * k], wi[3 * k + 1], wi[3 * k + 2]), o(wo[3 * k], wo[3 * k + 1], wo[3 * k + 2]);
+      const Rgb<Jet> want = b->Eval(p.data(), Vec3<Jet>(a.cast<Jet>()), Vec3<Jet>(o.cast<Jet>()));
+      const Rgb<Jet> got = b->EvalAt(p.data(), a, o);
+      for (int c = 0; c < 3; ++c) {
+        const std::string what = model.Spec() + " params " + FormatParams(info, pd) + " pair " + std::to_string(k) +
+                                 " channel " + std::to_string(c);
+        double scale = std::abs(want[c].a);
+        for (int j = 0; j < 4; ++j) scale = std::max(scale, std::abs(want[c].v[j]));
+        const double tol = 1e-12 * scale;
+        ASSERT_NEAR(got[c].a, want[c].a, tol) << what;
+        for (int j = 0; j < 4; ++j) ASSERT_NEAR(got[c].v[j], want[c].v[j], tol) << what << " derivative " << j;
+      }
+    }
+  }
+}
+
 class BatchEval : public ::testing::TestWithParam<std::string> {};
 
 TEST_P(BatchEval, EqualsEvalPairByPair) {
@@ -119,6 +153,12 @@ TEST_P(BatchEval, EqualsEvalPairByPair) {
   std::mt19937_64 rng(5);
   CheckModel<double>(model, rng);
   CheckModel<float>(model, rng);
+}
+
+TEST_P(BatchEval, EvalAtEqualsEvalOnJets) {
+  const Model model = GetParam() == "merl" ? Model::Parse("merl:" + test::KnownMerlFile()) : Model::Parse(GetParam());
+  std::mt19937_64 rng(7);
+  ExpectEvalAtEqualsEval(model, rng);
 }
 
 INSTANTIATE_TEST_SUITE_P(AllModels, BatchEval, ::testing::ValuesIn([] {
@@ -135,6 +175,7 @@ TEST(BatchEvalSums, EqualsEvalPairByPair) {
     const Model model = Model::Parse(spec);
     CheckModel<double>(model, rng);
     CheckModel<float>(model, rng);
+    ExpectEvalAtEqualsEval(model, rng);
   }
 }
 

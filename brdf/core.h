@@ -318,6 +318,13 @@ class Bxdf {
   virtual const ModelInfo& Info() const = 0;
   // f_r(wi, wo) in 1/sr per channel, without the cosine.
   virtual Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const = 0;
+  // f_r at directions given in double, which carry no derivatives: a model
+  // whose Eval also takes double directions with T parameters (microfacet
+  // lobes) computes the directions' part once in double instead of on T
+  // (a fit's Jacobian, T a Jet); any other model gets them cast to T.
+  virtual Rgb<T> EvalAt(const T* p, const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) const {
+    return Eval(p, Vec3<T>(wi.template cast<T>()), Vec3<T>(wo.template cast<T>()));
+  }
   // sum_k w[k] f_r(wi, wo[k]) over n outgoing directions in one call (the
   // aperture quadrature's inner sum; adapters override it with the model's
   // Eval inlined in the loop).

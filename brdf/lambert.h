@@ -30,8 +30,8 @@ struct Lambert : CosineSampling {
     return info;
   }
 
-  template <typename T>
-  Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const {
+  template <typename T, typename V = T>  // V: the directions' scalar (Bxdf::EvalAt)
+  Rgb<T> Eval(const T* p, const Vec3<V>& wi, const Vec3<V>& wo) const {
     if (!SameUpperHemisphere(wi, wo)) return Rgb<T>::Constant(T(0));
     return RgbAt(p, kAlbedo) * T(kInvPi);
   }

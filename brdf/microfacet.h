@@ -39,41 +39,43 @@ namespace brdfkit {
 
 // --- distributions ---------------------------------------------------------
 
-template <typename T>
-inline T DGgx(const Vec3<T>& wm, const T& ax, const T& ay) {
-  if (wm.z() <= T(0)) return T(0);  // back-facing microfacets do not exist
+// The direction arguments may be of a scalar type V other than T: double
+// directions with Jet roughness keep the directions' arithmetic in double.
+template <typename T, typename V>
+inline T DGgx(const Vec3<V>& wm, const T& ax, const T& ay) {
+  if (wm.z() <= V(0)) return T(0);  // back-facing microfacets do not exist
   const T e = wm.x() * wm.x() / (ax * ax) + wm.y() * wm.y() / (ay * ay) + wm.z() * wm.z();
   return T(1) / (T(kPi) * ax * ay * e * e);
 }
 
-template <typename T>
-inline T DBeckmann(const Vec3<T>& wm, const T& ax, const T& ay) {
+template <typename T, typename V>
+inline T DBeckmann(const Vec3<V>& wm, const T& ax, const T& ay) {
   using std::exp;
-  if (wm.z() <= T(0)) return T(0);  // back-facing microfacets do not exist
+  if (wm.z() <= V(0)) return T(0);  // back-facing microfacets do not exist
   using std::log;
-  const T z2 = wm.z() * wm.z();
+  const V z2 = wm.z() * wm.z();
   const T tan2_term = (wm.x() * wm.x() / (ax * ax) + wm.y() * wm.y() / (ay * ay)) / z2;
   // 1 / cos^4 folded into the exponent: near the horizon cos^4 underflows
   // (in float already at cos = 1e-10) while the exponential vanishes anyway.
-  return exp(-tan2_term - T(2) * log(z2)) / (T(kPi) * ax * ay);
+  return exp(-tan2_term - V(2) * log(z2)) / (T(kPi) * ax * ay);
 }
 
 // a^2 tan^2(theta) for projected roughness along w (Heitz 2014 eq. 80 ff.).
-template <typename T>
-inline T Alpha2Tan2(const Vec3<T>& w, const T& ax, const T& ay) {
+template <typename T, typename V>
+inline T Alpha2Tan2(const Vec3<V>& w, const T& ax, const T& ay) {
   return (ax * ax * w.x() * w.x() + ay * ay * w.y() * w.y()) / (w.z() * w.z());
 }
 
-template <typename T>
-inline T LambdaGgx(const Vec3<T>& w, const T& ax, const T& ay) {
+template <typename T, typename V>
+inline T LambdaGgx(const Vec3<V>& w, const T& ax, const T& ay) {
   using std::sqrt;
   const T a2t2 = Alpha2Tan2(w, ax, ay);
   // (sqrt(1 + x) - 1) / 2 written without the cancellation near x = 0.
   return a2t2 / (T(2) * (T(1) + sqrt(T(1) + a2t2)));
 }
 
-template <typename T>
-inline T LambdaBeckmann(const Vec3<T>& w, const T& ax, const T& ay) {
+template <typename T, typename V>
+inline T LambdaBeckmann(const Vec3<V>& w, const T& ax, const T& ay) {
   using std::erfc;
   using std::exp;
   using std::sqrt;
@@ -86,21 +88,22 @@ inline T LambdaBeckmann(const Vec3<T>& w, const T& ax, const T& ay) {
 
 // --- Fresnel ----------------------------------------------------------------
 
-template <typename T>
-inline T FresnelSchlick(const T& f0, const T& cos_theta) {
+// The cosine may be of a scalar type V other than T (see DGgx).
+template <typename T, typename V>
+inline T FresnelSchlick(const T& f0, const V& cos_theta) {
   // Rounding can put a cosine just outside [0, 1]; (1 - c)^5 must not go negative.
-  const T c = cos_theta > T(1) ? T(1) : (cos_theta > T(0) ? cos_theta : T(0));
-  const T m = T(1) - c;
-  const T m2 = m * m;
-  return f0 + (T(1) - f0) * m2 * m2 * m;
+  const V c = cos_theta > V(1) ? V(1) : (cos_theta > V(0) ? cos_theta : V(0));
+  const V m = V(1) - c;
+  const V m2 = m * m;
+  return f0 + (T(1) - f0) * (m2 * m2 * m);
 }
 
 // Unpolarised Fresnel reflectance of a dielectric interface with relative
 // index eta (transmitted over incident), light arriving at cos_theta.
-template <typename T>
-inline T FresnelDielectric(const T& eta, const T& cos_theta) {
+template <typename T, typename V>
+inline T FresnelDielectric(const T& eta, const V& cos_theta) {
   using std::sqrt;
-  const T c = cos_theta > T(0) ? cos_theta : T(0);
+  const V c = cos_theta > V(0) ? cos_theta : V(0);
   const T sin2_t = (T(1) - c * c) / (eta * eta);
   if (sin2_t >= T(1)) return T(1);  // total internal reflection (eta < 1)
   const T cos_t = sqrt(T(1) - sin2_t);
@@ -111,11 +114,11 @@ inline T FresnelDielectric(const T& eta, const T& cos_theta) {
 
 // Unpolarised Fresnel reflectance of a conductor with complex index eta + i k,
 // real-valued form of the complex Fresnel equations.
-template <typename T>
-inline T FresnelConductor(const T& eta, const T& k, const T& cos_theta) {
-  const T c = cos_theta > T(0) ? cos_theta : T(0);
-  const T c2 = c * c;
-  const T s2 = T(1) - c2;
+template <typename T, typename V>
+inline T FresnelConductor(const T& eta, const T& k, const V& cos_theta) {
+  const V c = cos_theta > V(0) ? cos_theta : V(0);
+  const V c2 = c * c;
+  const V s2 = V(1) - c2;
   const T t0 = eta * eta - k * k - s2;
   const T a2b2 = SafeSqrt(T(t0 * t0 + T(4) * eta * eta * k * k));
   const T a = SafeSqrt(T((a2b2 + t0) / T(2)));
@@ -241,39 +244,42 @@ class MicrofacetModel {
     ay = At(p, kAlphaY);
   }
 
-  template <typename T>
-  T D(const T* p, const Vec3<T>& wm) const {
+  // The directions of D, Lambda, G1, G2, Fresnel and Eval may be of a scalar
+  // type V other than T: double directions with Jet parameters (a fit's
+  // Jacobian) keep the half vector and the cosines in double.
+  template <typename T, typename V = T>
+  T D(const T* p, const Vec3<V>& wm) const {
     T ax, ay;
     Roughness(p, ax, ay);
     if constexpr (Config::kDist == MicrofacetDistribution::kGgx) return DGgx(wm, ax, ay);
     else return DBeckmann(wm, ax, ay);
   }
 
-  template <typename T>
-  T Lambda(const T* p, const Vec3<T>& w) const {
+  template <typename T, typename V = T>
+  T Lambda(const T* p, const Vec3<V>& w) const {
     T ax, ay;
     Roughness(p, ax, ay);
     if constexpr (Config::kDist == MicrofacetDistribution::kGgx) return LambdaGgx(w, ax, ay);
     else return LambdaBeckmann(w, ax, ay);
   }
 
-  template <typename T>
-  T G1(const T* p, const Vec3<T>& w, const Vec3<T>& wm) const {
-    if (w.dot(wm) <= T(0) || w.z() <= T(0)) return T(0);  // back side of the facet
+  template <typename T, typename V = T>
+  T G1(const T* p, const Vec3<V>& w, const Vec3<V>& wm) const {
+    if (w.dot(wm) <= V(0) || w.z() <= V(0)) return T(0);  // back side of the facet
     return T(1) / (T(1) + Lambda(p, w));
   }
 
-  template <typename T>
-  T G2(const T* p, const Vec3<T>& wi, const Vec3<T>& wo, const Vec3<T>& wm) const {
-    if (wi.dot(wm) <= T(0) || wo.dot(wm) <= T(0)) return T(0);  // facet faces away from one side
+  template <typename T, typename V = T>
+  T G2(const T* p, const Vec3<V>& wi, const Vec3<V>& wo, const Vec3<V>& wm) const {
+    if (wi.dot(wm) <= V(0) || wo.dot(wm) <= V(0)) return T(0);  // facet faces away from one side
     if constexpr (Config::kSmith == SmithForm::kHeightCorrelated)
       return T(1) / (T(1) + Lambda(p, wi) + Lambda(p, wo));
     else
       return G1(p, wi, wm) * G1(p, wo, wm);
   }
 
-  template <typename T>
-  Rgb<T> Fresnel(const T* p, const T& cos_theta) const {
+  template <typename T, typename V = T>
+  Rgb<T> Fresnel(const T* p, const V& cos_theta) const {
     Rgb<T> F;
     for (int c = 0; c < 3; ++c) {
       if constexpr (Config::kFresnel == FresnelForm::kSchlick) F[c] = FresnelSchlick(At(p, kF0, c), cos_theta);
@@ -283,12 +289,12 @@ class MicrofacetModel {
     return F;
   }
 
-  template <typename T>
-  Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const {
+  template <typename T, typename V = T>
+  Rgb<T> Eval(const T* p, const Vec3<V>& wi, const Vec3<V>& wo) const {
     if (!SameUpperHemisphere(wi, wo)) return Rgb<T>::Constant(T(0));
-    const Vec3<T> wm = HalfVector(wi, wo);
-    const T scalar = D(p, wm) * G2(p, wi, wo, wm) / (T(4) * wi.z() * wo.z());
-    return Fresnel(p, T(wi.dot(wm))) * scalar;
+    const Vec3<V> wm = HalfVector(wi, wo);
+    const T scalar = D(p, wm) * G2(p, wi, wo, wm) / V(V(4) * wi.z() * wo.z());
+    return Fresnel(p, V(wi.dot(wm))) * scalar;
   }
 
   // Eval over n pairs, vectorised (brdf/batch.h), for the GGX models with

@@ -6,6 +6,8 @@
 //   static ModelInfo Info();
 //   explicit M(const Settings&);
 //   template <class T> Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const;
+//     (or template <class T, class V = T> with Vec3<V> directions: Bxdf::EvalAt
+//     then keeps double directions in double on Jet parameters, as a fit's Jacobian wants)
 // and optionally
 //   template <class T> BsdfSample<T> Sample(const T* p, const Vec3<T>& wo, double u1, double u2) const;
 //   template <class T> T Pdf(const T* p, const Vec3<T>& wo, const Vec3<T>& wi) const;
@@ -124,6 +126,14 @@ class ModelAdapter final : public Bxdf<T> {
   Rgb<T> Eval(const T* p, const Vec3<T>& wi, const Vec3<T>& wo) const override {
     return m_->template Eval<T>(p, wi, wo);
   }
+  Rgb<T> EvalAt(const T* p, const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) const override {
+    // Eval<T, double> names the directions' type: Eigen's converting
+    // constructor would let Eval<T> accept double directions and then fail to compile.
+    if constexpr (requires(const M& mm, const Vec3<double>& w) { mm.template Eval<T, double>(p, w, w); })
+      return m_->template Eval<T, double>(p, Vec3<double>(wi), Vec3<double>(wo));
+    else
+      return Bxdf<T>::EvalAt(p, wi, wo);
+  }
   Rgb<T> EvalSum(const T* p, const Vec3<T>& wi, const Vec3<T>* wo, const double* w, std::size_t n) const override {
     Rgb<T> sum = Rgb<T>::Constant(T(0));
     for (std::size_t k = 0; k < n; ++k) sum += m_->template Eval<T>(p, wi, wo[k]) * T(w[k]);
@@ -188,6 +198,14 @@ class SumBxdf final : public Bxdf<T> {
     for (std::size_t k = 0; k < lobes_.size(); ++k) {
       if (weights_[k] < 0) f += lobes_[k]->Eval(p + offsets_[k], wi, wo);
       else f += lobes_[k]->Eval(p + offsets_[k], wi, wo) * p[weights_[k]];
+    }
+    return f;
+  }
+  Rgb<T> EvalAt(const T* p, const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) const override {
+    Rgb<T> f = Rgb<T>::Constant(T(0));
+    for (std::size_t k = 0; k < lobes_.size(); ++k) {
+      if (weights_[k] < 0) f += lobes_[k]->EvalAt(p + offsets_[k], wi, wo);
+      else f += lobes_[k]->EvalAt(p + offsets_[k], wi, wo) * p[weights_[k]];
     }
     return f;
   }

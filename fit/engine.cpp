@@ -160,7 +160,7 @@ Rgb<T> Engine::Prediction(const Bxdf<T>& b, const T* p, const Eigen::Vector3d& w
       return synth::MeasuredAtLevels(b, p, wi, wo, *ladder_, m.source_level, m.detector_level);
     }
   }
-  return b.Eval(p, Vec3<T>(wi.template cast<T>()), Vec3<T>(wo.template cast<T>()));
+  return b.EvalAt(p, wi, wo);
 }
 
 namespace {
@@ -248,7 +248,7 @@ Jet<M> ToLanes(const Jet<N>& p, const std::vector<std::size_t>& lanes) {
 template <int M, int N>
 void AddLobe(const Bxdf<Jet<M>>& b, const Jet<M>* p, const std::vector<std::size_t>& lanes, const Jet<N>* weight,
              const Eigen::Vector3d& wi, const Eigen::Vector3d& wo, Rgb<Jet<N>>& f) {
-  const Rgb<Jet<M>> g = b.Eval(p, Vec3<Jet<M>>(wi.cast<Jet<M>>()), Vec3<Jet<M>>(wo.cast<Jet<M>>()));
+  const Rgb<Jet<M>> g = b.EvalAt(p, wi, wo);
   // f += w g, with d(w g) = g dw + w dg and dg on the lobe's lanes only.
   const double w = weight ? weight->a : 1.0;
   for (int c = 0; c < 3; ++c) {
