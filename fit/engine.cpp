@@ -136,9 +136,15 @@ void Engine::SampleResiduals(const Bxdf<T>& b, const T* p, const Prepared& d, st
 
 template <class T>
 void Engine::ResidualsOf(const Rgb<T>& f, const Prepared& d, std::size_t q, double cos_i, bool fit, T* out) const {
+  Rgb<T> g;
+  for (int c = 0; c < 3; ++c) g[c] = MetricTransform(metric_, f[c], cos_i);
+  ResidualsOfTransformed(g, d, q, fit, out);
+}
+
+template <class T>
+void Engine::ResidualsOfTransformed(const Rgb<T>& g, const Prepared& d, std::size_t q, bool fit, T* out) const {
   for (int c = 0; c < 3; ++c) {
-    const T g = MetricTransform(metric_, f[c], cos_i);
-    const T r = g - T(d.target[q][c]);
+    const T r = g[c] - T(d.target[q][c]);
     if (fit) out[c] = Robust(loss_, loss_scale_, d.w_fit.empty() ? r : T(T(d.w_fit[q][c]) * r));
     else out[c] = d.w_fit.empty() && d.w_metric.empty() ? r : T(T(d.WMetric(q)[c]) * r);
   }
@@ -216,9 +222,18 @@ bool Engine::EvalDouble(const double* u, const Prepared& d, std::size_t begin, s
     std::vector<double> wi, wo, f(3 * (end - begin));
     const DirectionRows dir = Directions(d, begin, end, wi, wo);
     b_->EvalBatch(p.data(), dir.wi, dir.stride, dir.wo, dir.stride, end - begin, f.data());
-    for (std::size_t q = begin; q < end; ++q)
-      ResidualsOf(Rgb<double>(Rgb<double>::Map(f.data() + 3 * (q - begin))), d, q, dir.CosI(q - begin), fit,
-                  r + 3 * (q - begin));
+    if (metric_ == Metric::kCbrt) {
+      // The cube roots of the whole range in one vectorised pass.
+      std::vector<double> g(f.size());
+      CbrtRows(dir.wi, dir.stride, f.data(), end - begin, g.data());
+      for (std::size_t q = begin; q < end; ++q)
+        ResidualsOfTransformed(Rgb<double>(Rgb<double>::Map(g.data() + 3 * (q - begin))), d, q, fit,
+                               r + 3 * (q - begin));
+    } else {
+      for (std::size_t q = begin; q < end; ++q)
+        ResidualsOf(Rgb<double>(Rgb<double>::Map(f.data() + 3 * (q - begin))), d, q, dir.CosI(q - begin), fit,
+                    r + 3 * (q - begin));
+    }
   }
   for (std::size_t k = 0; k < 3 * (end - begin); ++k)
     if (!std::isfinite(r[k])) return false;
@@ -301,23 +316,48 @@ bool Engine::EvalJet(const Bxdf<Jet<N>>& b, const double* u, const Prepared& d, 
   // Lobe by lobe where the sum has them (not through an instrument's apertures).
   const bool by_lobe = !lobes_.empty() && !quad_ && !ladder_;
   const LobeParams lp = by_lobe ? ToLobes(pj.data()) : LobeParams{};
-  for (std::size_t q = begin; q < end; ++q) {
-    Jet<N> res[3];
-    if (by_lobe) {
-      const Eigen::Vector3d wi = d.Wi(q), wo = d.Wo(q);
-      ResidualsOf(SumOfLobes(lp, pj.data(), wi, wo), d, q, wi.z(), true, res);
-    } else {
-      SampleResiduals(b, pj.data(), d, q, true, res);
+  // Blocks of samples: their values first, then the metric's transform of
+  // the block at once (the cube root vectorised, CbrtRows), then residuals.
+  constexpr std::size_t kBlock = 16;
+  std::array<Rgb<Jet<N>>, kBlock> g;
+  std::array<double, 3 * kBlock> cos_rows{}, x, y;
+  static constexpr double kUnitRow[3] = {0, 0, 1};
+  for (std::size_t q0 = begin; q0 < end; q0 += kBlock) {
+    const std::size_t m = std::min(kBlock, end - q0);
+    for (std::size_t k = 0; k < m; ++k) {
+      const Eigen::Vector3d wi = d.Wi(q0 + k), wo = d.Wo(q0 + k);
+      g[k] = by_lobe ? SumOfLobes(lp, pj.data(), wi, wo) : Prediction(b, pj.data(), wi, wo);
+      cos_rows[3 * k + 2] = wi.z();
     }
-    for (int c = 0; c < 3; ++c) {
-      const std::size_t row = 3 * (q - begin) + c;
-      r[row] = res[c].a;
-      if (!std::isfinite(r[row])) return false;
-      if (jac) {
-        for (std::size_t k = 0; k < nf_; ++k) {
-          const double v = channel_[k] < 0 || channel_[k] == c ? res[c].v[slot_[k]] : 0.0;
+    if (metric_ == Metric::kCbrt) {
+      for (std::size_t k = 0; k < m; ++k)
+        for (int c = 0; c < 3; ++c) x[3 * k + c] = g[k][c].a * cos_rows[3 * k + 2];
+      CbrtRows(kUnitRow, 0, x.data(), m, y.data());
+      // d cbrt(v) = dv / (3 cbrt(v)^2), on the tangent below the knee (CbrtSafe).
+      const double knee_root = std::cbrt(kCbrtKnee);
+      for (std::size_t k = 0; k < m; ++k)
+        for (int c = 0; c < 3; ++c) {
+          const double root = x[3 * k + c] < kCbrtKnee ? knee_root : y[3 * k + c];
+          const double slope = cos_rows[3 * k + 2] / (3 * root * root);
+          g[k][c] = Jet<N>(y[3 * k + c], g[k][c].v * slope);
+        }
+    } else {
+      for (std::size_t k = 0; k < m; ++k)
+        for (int c = 0; c < 3; ++c) g[k][c] = MetricTransform(metric_, g[k][c], cos_rows[3 * k + 2]);
+    }
+    for (std::size_t k = 0; k < m; ++k) {
+      const std::size_t q = q0 + k;
+      Jet<N> res[3];
+      ResidualsOfTransformed(g[k], d, q, true, res);
+      for (int c = 0; c < 3; ++c) {
+        const std::size_t row = 3 * (q - begin) + c;
+        r[row] = res[c].a;
+        if (!std::isfinite(r[row])) return false;
+        if (!jac) continue;
+        for (std::size_t j = 0; j < nf_; ++j) {
+          const double v = channel_[j] < 0 || channel_[j] == c ? res[c].v[slot_[j]] : 0.0;
           if (!std::isfinite(v)) return false;
-          jac[row * nf_ + k] = v;
+          jac[row * nf_ + j] = v;
         }
       }
     }

@@ -28,6 +28,7 @@
 #include <type_traits>
 #include <vector>
 
+#include "brdf/batch.h"
 #include "data_synth/forward_model.h"
 #include "fit/fit.h"
 #include "fit/jet_models.h"
@@ -90,21 +91,28 @@ Prepared Rows(const Prepared& p, const std::vector<std::size_t>& rows);
 // infinite at 0 and Jets must stay finite.
 constexpr double kCbrtKnee = 1e-12;
 
-// cbrt(x) for x > 0, inlined: the exponent divided by 3 in the bits gives
-// a start within 10 %, two Halley steps (cubic convergence) and a Newton
-// step reach the rounding level (within 4 ulp of std::cbrt over 1e-12 to
-// 1e300, 0.55 ulp on average), 2.5x faster than std::cbrt, which calls out
-// of line for frexp and scalbn (a quarter of a cbrt-metric fit's time went
-// there). Outside 1e-300 to 1e300 (y^3 could overflow) it is std::cbrt.
-inline double CbrtPositive(double x) {
-  if (!(x >= 1e-300 && x <= 1e300)) return std::cbrt(x);
-  double y = std::bit_cast<double>(std::bit_cast<std::uint64_t>(x) / 3 + 0x2a9f7893782da1ceULL);
+// cbrt(x) for x in [1e-300, 1e300], without branches: the exponent divided
+// by 3 in the bits (through a double, which GCC vectorises where it does not
+// a 64-bit integer division) gives a start within 10 %, two Halley steps
+// (cubic convergence) and a Newton step reach the rounding level (within 4
+// ulp of std::cbrt over 1e-12 to 1e300, 0.55 ulp on average), 2.5x faster
+// than std::cbrt, which calls out of line for frexp and scalbn (a quarter
+// of a cbrt-metric fit's time went there).
+[[gnu::always_inline]] inline double CbrtSteps(double x) {
+  const double bits = double(std::bit_cast<std::int64_t>(x));
+  double y = std::bit_cast<double>(std::int64_t(bits * (1.0 / 3)) + 0x2a9f7893782da1ceLL);
   for (int k = 0; k < 2; ++k) {
     const double y3 = y * y * y;
     y *= (y3 + 2 * x) / (2 * y3 + x);
   }
   const double y2 = y * y;
   return y - (y2 * y - x) / (3 * y2);
+}
+
+// cbrt(x) for x > 0; outside 1e-300 to 1e300 (y^3 could overflow) std::cbrt.
+inline double CbrtPositive(double x) {
+  if (!(x >= 1e-300 && x <= 1e300)) return std::cbrt(x);
+  return CbrtSteps(x);
 }
 
 template <class T>
@@ -120,6 +128,35 @@ T CbrtSafe(const T& x) {
     const double y = CbrtPositive(x.a);
     return T(y, x.v / (3 * y * y));
   }
+}
+
+// CbrtSafe(f cos_i) for rows of samples, as a kernel of RunBatchKernel
+// (brdf/batch.h): wi's row gives cos_i (wi[2]), wo's row three values f,
+// out their transforms. Branch-free (CbrtSteps on x clamped into [knee,
+// 1e300], the tangent selected below the knee), so GCC vectorises it; a
+// NaN stays NaN. CbrtRows below mends x beyond 1e300.
+struct CbrtKernel {
+  double c = std::cbrt(kCbrtKnee);
+  [[gnu::always_inline]] void operator()(const double* wi, const double* f, double* out) const {
+    for (int ch = 0; ch < 3; ++ch) {
+      const double x = f[ch] * wi[2];
+      const double low = brdfkit::Select(x < kCbrtKnee, kCbrtKnee, x);
+      const double y = CbrtSteps(brdfkit::Select(low > 1e300, 1e300, low));
+      out[ch] = brdfkit::Select(x < kCbrtKnee, c + (x - kCbrtKnee) / (3 * c * c), y);
+    }
+  }
+};
+
+// CbrtSafe(f[3 k + ch] cos_i) of n rows into out[3 k + ch], cos_i of row k
+// at wi[k * stride + 2] (stride 0: one row for all): the vectorised kernel,
+// then std::cbrt where x lies beyond its range (y^3 would overflow).
+inline void CbrtRows(const double* wi, std::size_t stride, const double* f, std::size_t n, double* out) {
+  RunBatchKernel(CbrtKernel{}, wi, stride, f, 3, n, out);
+  for (std::size_t k = 0; k < n; ++k)
+    for (int ch = 0; ch < 3; ++ch) {
+      const double x = f[3 * k + ch] * wi[k * stride + 2];
+      if (x > 1e300) out[3 * k + ch] = std::cbrt(x);
+    }
 }
 
 // The metric's transform G of a value v = f (l2, relative, cosine) or v = f cos_i.
@@ -218,6 +255,9 @@ class Engine {
   void SampleResiduals(const Bxdf<T>& b, const T* p, const Prepared& d, std::size_t q, bool fit, T* out) const;
   template <class T>
   void ResidualsOf(const Rgb<T>& f, const Prepared& d, std::size_t q, double cos_i, bool fit, T* out) const;
+  // The same from g = G(f), the metric's transform already applied.
+  template <class T>
+  void ResidualsOfTransformed(const Rgb<T>& g, const Prepared& d, std::size_t q, bool fit, T* out) const;
   template <class T>
   Rgb<T> Prediction(const Bxdf<T>& b, const T* p, const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) const;
   template <int N>
