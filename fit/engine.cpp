@@ -222,10 +222,11 @@ bool Engine::EvalDouble(const double* u, const Prepared& d, std::size_t begin, s
     std::vector<double> wi, wo, f(3 * (end - begin));
     const DirectionRows dir = Directions(d, begin, end, wi, wo);
     b_->EvalBatch(p.data(), dir.wi, dir.stride, dir.wo, dir.stride, end - begin, f.data());
-    if (metric_ == Metric::kCbrt) {
-      // The cube roots of the whole range in one vectorised pass.
+    if (metric_ == Metric::kCbrt || metric_ == Metric::kLog) {
+      // The transforms of the whole range in one vectorised pass.
       std::vector<double> g(f.size());
-      CbrtRows(dir.wi, dir.stride, f.data(), end - begin, g.data());
+      if (metric_ == Metric::kCbrt) CbrtRows(dir.wi, dir.stride, f.data(), end - begin, g.data());
+      else Log1pRows(dir.wi, dir.stride, f.data(), end - begin, g.data());
       for (std::size_t q = begin; q < end; ++q)
         ResidualsOfTransformed(Rgb<double>(Rgb<double>::Map(g.data() + 3 * (q - begin))), d, q, fit,
                                r + 3 * (q - begin));
@@ -317,7 +318,7 @@ bool Engine::EvalJet(const Bxdf<Jet<N>>& b, const double* u, const Prepared& d, 
   const bool by_lobe = !lobes_.empty() && !quad_ && !ladder_;
   const LobeParams lp = by_lobe ? ToLobes(pj.data()) : LobeParams{};
   // Blocks of samples: their values first, then the metric's transform of
-  // the block at once (the cube root vectorised, CbrtRows), then residuals.
+  // the block at once (cube root and log1p vectorised), then residuals.
   constexpr std::size_t kBlock = 16;
   std::array<Rgb<Jet<N>>, kBlock> g;
   std::array<double, 3 * kBlock> cos_rows{}, x, y;
@@ -329,17 +330,20 @@ bool Engine::EvalJet(const Bxdf<Jet<N>>& b, const double* u, const Prepared& d, 
       g[k] = by_lobe ? SumOfLobes(lp, pj.data(), wi, wo) : Prediction(b, pj.data(), wi, wo);
       cos_rows[3 * k + 2] = wi.z();
     }
-    if (metric_ == Metric::kCbrt) {
+    if (metric_ == Metric::kCbrt || metric_ == Metric::kLog) {
       for (std::size_t k = 0; k < m; ++k)
         for (int c = 0; c < 3; ++c) x[3 * k + c] = g[k][c].a * cos_rows[3 * k + 2];
-      CbrtRows(kUnitRow, 0, x.data(), m, y.data());
-      // d cbrt(v) = dv / (3 cbrt(v)^2), on the tangent below the knee (CbrtSafe).
+      if (metric_ == Metric::kCbrt) CbrtRows(kUnitRow, 0, x.data(), m, y.data());
+      else Log1pRows(kUnitRow, 0, x.data(), m, y.data());
       const double knee_root = std::cbrt(kCbrtKnee);
       for (std::size_t k = 0; k < m; ++k)
         for (int c = 0; c < 3; ++c) {
-          const double root = x[3 * k + c] < kCbrtKnee ? knee_root : y[3 * k + c];
-          const double slope = cos_rows[3 * k + 2] / (3 * root * root);
-          g[k][c] = Jet<N>(y[3 * k + c], g[k][c].v * slope);
+          const double v = x[3 * k + c];
+          // d log1p(v) = dv / (1 + v); d cbrt(v) = dv / (3 cbrt(v)^2), on the
+          // tangent below the knee (CbrtSafe).
+          const double root = v < kCbrtKnee ? knee_root : y[3 * k + c];
+          const double dg = metric_ == Metric::kLog ? 1 / (1 + v) : 1 / (3 * root * root);
+          g[k][c] = Jet<N>(y[3 * k + c], g[k][c].v * (cos_rows[3 * k + 2] * dg));
         }
     } else {
       for (std::size_t k = 0; k < m; ++k)

@@ -159,6 +159,13 @@ inline void CbrtRows(const double* wi, std::size_t stride, const double* f, std:
     }
 }
 
+// log1p(f[3 k + ch] cos_i) of n rows into out[3 k + ch], cos_i of row k at
+// wi[k * stride + 2] (stride 0: one row for all): std::log1p's values
+// through glibc's vector math library (libmvec: 8 or 4 values a call, to 4
+// ulp, on the instruction set of brdf/batch.h in use) where the build found
+// it, else std::log1p value by value.
+void Log1pRows(const double* wi, std::size_t stride, const double* f, std::size_t n, double* out);
+
 // The metric's transform G of a value v = f (l2, relative, cosine) or v = f cos_i.
 template <class T>
 T MetricTransform(Metric m, const T& f, double cos_i) {

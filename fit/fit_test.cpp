@@ -401,6 +401,19 @@ TEST(Fit, EveryResidualPassesGradientChecker) {
     }
 }
 
+// The instruction sets of brdf/batch.h this processor has, and a cap on
+// them for the lifetime of an IsaLimit.
+std::vector<BatchIsa> IsasHere() {
+  std::vector<BatchIsa> out;
+  for (BatchIsa isa : {BatchIsa::kBaseline, BatchIsa::kAvx2, BatchIsa::kAvx512})
+    if (isa <= DetectedBatchIsa()) out.push_back(isa);
+  return out;
+}
+struct IsaLimit {
+  explicit IsaLimit(BatchIsa isa) { LimitBatchIsa(isa); }
+  ~IsaLimit() { LimitBatchIsa(BatchIsa::kAvx512); }
+};
+
 // The cube-root metric's vectorised transform, on every instruction set of
 // brdf/batch.h this processor has: std::cbrt(f cos_i) to 4 ulp from the knee
 // (1e-12) to beyond 1e300 (std::cbrt's own there), the tangent at the knee
@@ -425,12 +438,8 @@ TEST(Fit, CbrtRowsIsTheCubeRootOfTheMetric) {
     if (std::isnan(x)) return x;
     return x < kCbrtKnee ? knee_root + (x - kCbrtKnee) / (3 * knee_root * knee_root) : std::cbrt(x);
   };
-  struct Guard {
-    ~Guard() { LimitBatchIsa(BatchIsa::kAvx512); }
-  } guard;
-  for (BatchIsa isa : {BatchIsa::kBaseline, BatchIsa::kAvx2, BatchIsa::kAvx512}) {
-    if (isa > DetectedBatchIsa()) continue;
-    LimitBatchIsa(isa);
+  for (BatchIsa isa : IsasHere()) {
+    const IsaLimit limit(isa);
     std::vector<double> out(f.size()), one(f.size());
     CbrtRows(rows.data(), 3, f.data(), n, out.data());
     const double unit[3] = {0, 0, 1};
@@ -452,6 +461,47 @@ TEST(Fit, CbrtRowsIsTheCubeRootOfTheMetric) {
         EXPECT_NEAR(out[3 * k + c], w, 4 * std::numeric_limits<double>::epsilon() * std::abs(w)) << what;
         EXPECT_NEAR(one[3 * k + c], w1, 4 * std::numeric_limits<double>::epsilon() * std::abs(w1)) << what;
       }
+  }
+}
+
+// The log metric's transform, on every instruction set this processor
+// has: std::log1p(f cos_i) to 4 ulp (glibc's vector log1p where the build
+// found it) over 0 to 1e300 and down to -1 (-inf there, NaN below), a
+// broadcast row too, and lengths that leave a tail past the vector width.
+TEST(Fit, Log1pRowsIsTheLogOfTheMetric) {
+  std::vector<double> f, rows;
+  std::mt19937_64 rng(4);
+  std::uniform_real_distribution<double> exponent(-300, 300), cosine(0.01, 1), unit(-1, 1);
+  for (int k = 0; k < 999; ++k) {
+    for (int c = 0; c < 3; ++c) f.push_back(k % 5 == 0 ? unit(rng) : std::pow(10.0, exponent(rng)));
+    rows.insert(rows.end(), {0.5, -0.5, cosine(rng)});
+  }
+  for (double v : {-2.0, -1.0, -0.5, -1e-300, 0.0, 1e-300, 1e-17, 1e-8, 0.5, 1.0, 1e300,
+                   std::numeric_limits<double>::infinity(), std::numeric_limits<double>::quiet_NaN()}) {
+    f.insert(f.end(), {v, v, v});
+    rows.insert(rows.end(), {0.0, 0.0, 1.0});
+  }
+  for (BatchIsa isa : IsasHere()) {
+    const IsaLimit limit(isa);
+    for (std::size_t n : {rows.size() / 3, std::size_t(1), std::size_t(3), std::size_t(7)}) {
+      std::vector<double> out(3 * n), one(3 * n);
+      Log1pRows(rows.data(), 3, f.data(), n, out.data());
+      const double unit_row[3] = {0, 0, 1};
+      Log1pRows(unit_row, 0, f.data(), n, one.data());
+      for (std::size_t k = 0; k < 3 * n; ++k) {
+        const double x = f[k] * rows[3 * (k / 3) + 2];
+        const std::string what = "isa " + std::to_string(int(isa)) + " x " + FormatDouble(x);
+        for (const auto& [got, want] : {std::pair{out[k], std::log1p(x)}, std::pair{one[k], std::log1p(f[k])}}) {
+          if (std::isnan(want)) {
+            EXPECT_TRUE(std::isnan(got)) << what;
+          } else if (std::isinf(want)) {
+            EXPECT_EQ(got, want) << what;
+          } else {
+            EXPECT_NEAR(got, want, 4 * std::numeric_limits<double>::epsilon() * std::abs(want)) << what;
+          }
+        }
+      }
+    }
   }
 }
 

@@ -15,7 +15,45 @@
 
 #include "fit/fit_internal.h"
 
+#if BRDFKIT_HAVE_LIBMVEC
+#include <immintrin.h>
+// glibc's vector variants of log1p (libmvec, the x86-64 vector function ABI;
+// declared with their instruction sets, which clang requires of __m512d arguments).
+extern "C" __attribute__((target("avx512f"))) __m512d _ZGVeN8v_log1p(__m512d);
+extern "C" __attribute__((target("avx2"))) __m256d _ZGVdN4v_log1p(__m256d);
+#endif
+
 namespace brdfkit::fit {
+
+#if BRDFKIT_HAVE_LIBMVEC
+namespace {
+// In place over n values; returns how many it did (a multiple of the width).
+[[gnu::target("avx512f,avx512vl,avx512dq,avx2,fma")]] std::size_t Log1pAvx512(double* v, std::size_t n) {
+  std::size_t k = 0;
+  for (; k + 8 <= n; k += 8) _mm512_storeu_pd(v + k, _ZGVeN8v_log1p(_mm512_loadu_pd(v + k)));
+  return k;
+}
+[[gnu::target("avx2,fma")]] std::size_t Log1pAvx2(double* v, std::size_t n) {
+  std::size_t k = 0;
+  for (; k + 4 <= n; k += 4) _mm256_storeu_pd(v + k, _ZGVdN4v_log1p(_mm256_loadu_pd(v + k)));
+  return k;
+}
+}  // namespace
+#endif
+
+void Log1pRows(const double* wi, std::size_t stride, const double* f, std::size_t n, double* out) {
+  for (std::size_t k = 0; k < n; ++k)
+    for (int ch = 0; ch < 3; ++ch) out[3 * k + ch] = f[3 * k + ch] * wi[k * stride + 2];
+  std::size_t done = 0;
+#if BRDFKIT_HAVE_LIBMVEC
+  switch (ActiveBatchIsa()) {
+    case BatchIsa::kAvx512: done = Log1pAvx512(out, 3 * n); break;
+    case BatchIsa::kAvx2: done = Log1pAvx2(out, 3 * n); break;
+    case BatchIsa::kBaseline: break;
+  }
+#endif
+  for (std::size_t k = done; k < 3 * n; ++k) out[k] = std::log1p(out[k]);
+}
 
 const std::vector<Metric>& AllMetrics() {
   static const std::vector<Metric> kAll = {Metric::kL2, Metric::kRelative, Metric::kCosine, Metric::kLog,
