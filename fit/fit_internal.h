@@ -132,31 +132,30 @@ T CbrtSafe(const T& x) {
 
 // CbrtSafe(f cos_i) for rows of samples, as a kernel of RunBatchKernel
 // (brdf/batch.h): wi's row gives cos_i (wi[2]), wo's row three values f,
-// out their transforms. Branch-free (CbrtSteps on x clamped into [knee,
-// 1e300], the tangent selected below the knee), so GCC vectorises it; a
-// NaN stays NaN. CbrtRows below mends x beyond 1e300.
+// out their transforms. Branch-free, so GCC vectorises it: CbrtSteps on x
+// within [knee, 1e300]; beyond 1e300 (y^3 could overflow there) on x 2^-300,
+// the root scaled back by 2^100 (exact); infinity kept; the tangent
+// selected below the knee; a NaN stays NaN.
 struct CbrtKernel {
   double c = std::cbrt(kCbrtKnee);
   [[gnu::always_inline]] void operator()(const double* wi, const double* f, double* out) const {
+    using brdfkit::Select;
     for (int ch = 0; ch < 3; ++ch) {
       const double x = f[ch] * wi[2];
-      const double low = brdfkit::Select(x < kCbrtKnee, kCbrtKnee, x);
-      const double y = CbrtSteps(brdfkit::Select(low > 1e300, 1e300, low));
-      out[ch] = brdfkit::Select(x < kCbrtKnee, c + (x - kCbrtKnee) / (3 * c * c), y);
+      const bool big = x > 1e300;
+      const double scaled = Select(big, x * 0x1p-300, x);
+      const double low = Select(scaled < kCbrtKnee, kCbrtKnee, scaled);
+      const double root = CbrtSteps(Select(low > 1e300, 1e300, low));  // only infinity is clamped here
+      const double y = Select(x == std::numeric_limits<double>::infinity(), x, Select(big, root * 0x1p100, root));
+      out[ch] = Select(x < kCbrtKnee, c + (x - kCbrtKnee) / (3 * c * c), y);
     }
   }
 };
 
 // CbrtSafe(f[3 k + ch] cos_i) of n rows into out[3 k + ch], cos_i of row k
-// at wi[k * stride + 2] (stride 0: one row for all): the vectorised kernel,
-// then std::cbrt where x lies beyond its range (y^3 would overflow).
+// at wi[k * stride + 2] (stride 0: one row for all).
 inline void CbrtRows(const double* wi, std::size_t stride, const double* f, std::size_t n, double* out) {
   RunBatchKernel(CbrtKernel{}, wi, stride, f, 3, n, out);
-  for (std::size_t k = 0; k < n; ++k)
-    for (int ch = 0; ch < 3; ++ch) {
-      const double x = f[3 * k + ch] * wi[k * stride + 2];
-      if (x > 1e300) out[3 * k + ch] = std::cbrt(x);
-    }
 }
 
 // log1p(f[3 k + ch] cos_i) of n rows into out[3 k + ch], cos_i of row k at
