@@ -60,30 +60,72 @@ inline T DBeckmann(const Vec3<V>& wm, const T& ax, const T& ay) {
   return exp(-tan2_term - V(2) * log(z2)) / (T(kPi) * ax * ay);
 }
 
+// The isotropic forms (ax = ay = a) sum the azimuthal terms in V first:
+// on Jet roughness with double directions half the Jet operations.
+template <typename T, typename V>
+inline T DGgx(const Vec3<V>& wm, const T& a) {
+  if (wm.z() <= V(0)) return T(0);  // back-facing microfacets do not exist
+  const T a2 = a * a;
+  const T e = V(wm.x() * wm.x() + wm.y() * wm.y()) / a2 + V(wm.z() * wm.z());
+  return T(1) / (T(kPi) * a2 * e * e);
+}
+
+template <typename T, typename V>
+inline T DBeckmann(const Vec3<V>& wm, const T& a) {
+  using std::exp;
+  using std::log;
+  if (wm.z() <= V(0)) return T(0);  // back-facing microfacets do not exist
+  const V z2 = wm.z() * wm.z();
+  const T a2 = a * a;
+  const T tan2_term = V((wm.x() * wm.x() + wm.y() * wm.y()) / z2) / a2;
+  return exp(-tan2_term - V(2) * log(z2)) / (T(kPi) * a2);  // 1 / cos^4 in the exponent, as above
+}
+
 // a^2 tan^2(theta) for projected roughness along w (Heitz 2014 eq. 80 ff.).
 template <typename T, typename V>
 inline T Alpha2Tan2(const Vec3<V>& w, const T& ax, const T& ay) {
   return (ax * ax * w.x() * w.x() + ay * ay * w.y() * w.y()) / (w.z() * w.z());
 }
-
 template <typename T, typename V>
-inline T LambdaGgx(const Vec3<V>& w, const T& ax, const T& ay) {
+inline T Alpha2Tan2(const Vec3<V>& w, const T& a) {
+  return a * a * V((w.x() * w.x() + w.y() * w.y()) / (w.z() * w.z()));
+}
+
+// Lambda from a^2 tan^2(theta).
+template <typename T>
+inline T LambdaGgxOf(const T& a2t2) {
   using std::sqrt;
-  const T a2t2 = Alpha2Tan2(w, ax, ay);
   // (sqrt(1 + x) - 1) / 2 written without the cancellation near x = 0.
   return a2t2 / (T(2) * (T(1) + sqrt(T(1) + a2t2)));
 }
 
-template <typename T, typename V>
-inline T LambdaBeckmann(const Vec3<V>& w, const T& ax, const T& ay) {
+template <typename T>
+inline T LambdaBeckmannOf(const T& a2t2) {
   using std::erfc;
   using std::exp;
   using std::sqrt;
-  const T a2t2 = Alpha2Tan2(w, ax, ay);
   if (a2t2 <= T(0)) return T(0);  // w along the normal: nothing is masked
   const T v = T(1) / sqrt(a2t2);
   // erf(v) - 1 = -erfc(v) keeps the small difference accurate for large v.
   return (exp(-v * v) / (v * T(1.7724538509055160273)) - erfc(v)) / T(2);
+}
+
+template <typename T, typename V>
+inline T LambdaGgx(const Vec3<V>& w, const T& ax, const T& ay) {
+  return LambdaGgxOf(Alpha2Tan2(w, ax, ay));
+}
+template <typename T, typename V>
+inline T LambdaGgx(const Vec3<V>& w, const T& a) {
+  return LambdaGgxOf(Alpha2Tan2(w, a));
+}
+
+template <typename T, typename V>
+inline T LambdaBeckmann(const Vec3<V>& w, const T& ax, const T& ay) {
+  return LambdaBeckmannOf(Alpha2Tan2(w, ax, ay));
+}
+template <typename T, typename V>
+inline T LambdaBeckmann(const Vec3<V>& w, const T& a) {
+  return LambdaBeckmannOf(Alpha2Tan2(w, a));
 }
 
 // --- Fresnel ----------------------------------------------------------------
@@ -249,18 +291,28 @@ class MicrofacetModel {
   // Jacobian) keep the half vector and the cosines in double.
   template <typename T, typename V = T>
   T D(const T* p, const Vec3<V>& wm) const {
-    T ax, ay;
-    Roughness(p, ax, ay);
-    if constexpr (Config::kDist == MicrofacetDistribution::kGgx) return DGgx(wm, ax, ay);
-    else return DBeckmann(wm, ax, ay);
+    if constexpr (!Config::kAniso) {
+      if constexpr (Config::kDist == MicrofacetDistribution::kGgx) return DGgx(wm, At(p, kAlphaX));
+      else return DBeckmann(wm, At(p, kAlphaX));
+    } else {
+      T ax, ay;
+      Roughness(p, ax, ay);
+      if constexpr (Config::kDist == MicrofacetDistribution::kGgx) return DGgx(wm, ax, ay);
+      else return DBeckmann(wm, ax, ay);
+    }
   }
 
   template <typename T, typename V = T>
   T Lambda(const T* p, const Vec3<V>& w) const {
-    T ax, ay;
-    Roughness(p, ax, ay);
-    if constexpr (Config::kDist == MicrofacetDistribution::kGgx) return LambdaGgx(w, ax, ay);
-    else return LambdaBeckmann(w, ax, ay);
+    if constexpr (!Config::kAniso) {
+      if constexpr (Config::kDist == MicrofacetDistribution::kGgx) return LambdaGgx(w, At(p, kAlphaX));
+      else return LambdaBeckmann(w, At(p, kAlphaX));
+    } else {
+      T ax, ay;
+      Roughness(p, ax, ay);
+      if constexpr (Config::kDist == MicrofacetDistribution::kGgx) return LambdaGgx(w, ax, ay);
+      else return LambdaBeckmann(w, ax, ay);
+    }
   }
 
   template <typename T, typename V = T>
