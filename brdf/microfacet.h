@@ -114,18 +114,10 @@ template <typename T, typename V>
 inline T LambdaGgx(const Vec3<V>& w, const T& ax, const T& ay) {
   return LambdaGgxOf(Alpha2Tan2(w, ax, ay));
 }
-template <typename T, typename V>
-inline T LambdaGgx(const Vec3<V>& w, const T& a) {
-  return LambdaGgxOf(Alpha2Tan2(w, a));
-}
 
 template <typename T, typename V>
 inline T LambdaBeckmann(const Vec3<V>& w, const T& ax, const T& ay) {
   return LambdaBeckmannOf(Alpha2Tan2(w, ax, ay));
-}
-template <typename T, typename V>
-inline T LambdaBeckmann(const Vec3<V>& w, const T& a) {
-  return LambdaBeckmannOf(Alpha2Tan2(w, a));
 }
 
 // --- Fresnel ----------------------------------------------------------------
@@ -305,8 +297,8 @@ class MicrofacetModel {
   template <typename T, typename V = T>
   T Lambda(const T* p, const Vec3<V>& w) const {
     if constexpr (!Config::kAniso) {
-      if constexpr (Config::kDist == MicrofacetDistribution::kGgx) return LambdaGgx(w, At(p, kAlphaX));
-      else return LambdaBeckmann(w, At(p, kAlphaX));
+      if constexpr (Config::kDist == MicrofacetDistribution::kGgx) return LambdaGgxOf(Alpha2Tan2(w, At(p, kAlphaX)));
+      else return LambdaBeckmannOf(Alpha2Tan2(w, At(p, kAlphaX)));
     } else {
       T ax, ay;
       Roughness(p, ax, ay);
