@@ -150,6 +150,21 @@ void Engine::ResidualsOfTransformed(const Rgb<T>& g, const Prepared& d, std::siz
   }
 }
 
+void Engine::ResidualsOfRange(const Prepared& d, std::size_t begin, std::size_t end, bool fit, double* r) const {
+  static_assert(sizeof(Eigen::Array3d) == 3 * sizeof(double));  // the per-sample arrays read flat
+  const std::size_t m = 3 * (end - begin);
+  const double* t = d.target[begin].data();
+  for (std::size_t k = 0; k < m; ++k) r[k] -= t[k];
+  // The weights ResidualsOfTransformed applies: w_fit, or the metric's own.
+  const std::vector<Eigen::Array3d>& w = fit || d.w_metric.empty() ? d.w_fit : d.w_metric;
+  if (!w.empty()) {
+    const double* wk = w[begin].data();
+    for (std::size_t k = 0; k < m; ++k) r[k] *= wk[k];
+  }
+  if (fit && loss_ != Loss::kNone)
+    for (std::size_t k = 0; k < m; ++k) r[k] = Robust(loss_, loss_scale_, r[k]);
+}
+
 // The model's value for the directions wi, wo: f_r, or f_r through the instrument's apertures.
 template <class T>
 Rgb<T> Engine::Prediction(const Bxdf<T>& b, const T* p, const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) const {
@@ -218,23 +233,21 @@ bool Engine::EvalDouble(const double* u, const Prepared& d, std::size_t begin, s
   if (quad_ || ladder_) {
     for (std::size_t q = begin; q < end; ++q) SampleResiduals(*b_, p.data(), d, q, fit, r + 3 * (q - begin));
   } else if (end > begin) {
-    // f_r of the whole range in one EvalBatch call (the model's vectorised kernel).
-    std::vector<double> wi, wo, f(3 * (end - begin));
+    // f_r of the whole range in one EvalBatch call (the model's vectorised
+    // kernel), its transform G in one vectorised pass, then the residuals
+    // w (G(f) - target) of the range at once, all in r.
+    const std::size_t n = end - begin;
+    std::vector<double> wi, wo, f;
     const DirectionRows dir = Directions(d, begin, end, wi, wo);
-    b_->EvalBatch(p.data(), dir.wi, dir.stride, dir.wo, dir.stride, end - begin, f.data());
     if (metric_ == Metric::kCbrt || metric_ == Metric::kLog) {
-      // The transforms of the whole range in one vectorised pass.
-      std::vector<double> g(f.size());
-      if (metric_ == Metric::kCbrt) CbrtRows(dir.wi, dir.stride, f.data(), end - begin, g.data());
-      else Log1pRows(dir.wi, dir.stride, f.data(), end - begin, g.data());
-      for (std::size_t q = begin; q < end; ++q)
-        ResidualsOfTransformed(Rgb<double>(Rgb<double>::Map(g.data() + 3 * (q - begin))), d, q, fit,
-                               r + 3 * (q - begin));
+      f.resize(3 * n);
+      b_->EvalBatch(p.data(), dir.wi, dir.stride, dir.wo, dir.stride, n, f.data());
+      if (metric_ == Metric::kCbrt) CbrtRows(dir.wi, dir.stride, f.data(), n, r);
+      else Log1pRows(dir.wi, dir.stride, f.data(), n, r);
     } else {
-      for (std::size_t q = begin; q < end; ++q)
-        ResidualsOf(Rgb<double>(Rgb<double>::Map(f.data() + 3 * (q - begin))), d, q, dir.CosI(q - begin), fit,
-                    r + 3 * (q - begin));
+      b_->EvalBatch(p.data(), dir.wi, dir.stride, dir.wo, dir.stride, n, r);  // G is f itself
     }
+    ResidualsOfRange(d, begin, end, fit, r);
   }
   for (std::size_t k = 0; k < 3 * (end - begin); ++k)
     if (!std::isfinite(r[k])) return false;

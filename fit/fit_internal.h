@@ -264,6 +264,9 @@ class Engine {
   // The same from g = G(f), the metric's transform already applied.
   template <class T>
   void ResidualsOfTransformed(const Rgb<T>& g, const Prepared& d, std::size_t q, bool fit, T* out) const;
+  // ResidualsOfTransformed for samples [begin, end) at once, in place: r
+  // holds G(f) of the range (3 per sample) and receives the residuals.
+  void ResidualsOfRange(const Prepared& d, std::size_t begin, std::size_t end, bool fit, double* r) const;
   template <class T>
   Rgb<T> Prediction(const Bxdf<T>& b, const T* p, const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) const;
   template <int N>
