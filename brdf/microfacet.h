@@ -296,15 +296,16 @@ class MicrofacetModel {
 
   template <typename T, typename V = T>
   T Lambda(const T* p, const Vec3<V>& w) const {
+    T a2t2;
     if constexpr (!Config::kAniso) {
-      if constexpr (Config::kDist == MicrofacetDistribution::kGgx) return LambdaGgxOf(Alpha2Tan2(w, At(p, kAlphaX)));
-      else return LambdaBeckmannOf(Alpha2Tan2(w, At(p, kAlphaX)));
+      a2t2 = Alpha2Tan2(w, At(p, kAlphaX));
     } else {
       T ax, ay;
       Roughness(p, ax, ay);
-      if constexpr (Config::kDist == MicrofacetDistribution::kGgx) return LambdaGgx(w, ax, ay);
-      else return LambdaBeckmann(w, ax, ay);
+      a2t2 = Alpha2Tan2(w, ax, ay);
     }
+    if constexpr (Config::kDist == MicrofacetDistribution::kGgx) return LambdaGgxOf(a2t2);
+    else return LambdaBeckmannOf(a2t2);
   }
 
   template <typename T, typename V = T>

@@ -192,7 +192,6 @@ struct DirectionRows {
   const double* wi;
   const double* wo;
   std::size_t stride;
-  double CosI(std::size_t k) const { return wi[stride * k + 2]; }
 };
 DirectionRows Directions(const Prepared& d, std::size_t begin, std::size_t end, std::vector<double>& wi,
                          std::vector<double>& wo) {
@@ -348,13 +347,12 @@ bool Engine::EvalJet(const Bxdf<Jet<N>>& b, const double* u, const Prepared& d, 
         for (int c = 0; c < 3; ++c) x[3 * k + c] = g[k][c].a * cos_rows[3 * k + 2];
       if (metric_ == Metric::kCbrt) CbrtRows(kUnitRow, 0, x.data(), m, y.data());
       else Log1pRows(kUnitRow, 0, x.data(), m, y.data());
-      const double knee_root = std::cbrt(kCbrtKnee);
       for (std::size_t k = 0; k < m; ++k)
         for (int c = 0; c < 3; ++c) {
           const double v = x[3 * k + c];
           // d log1p(v) = dv / (1 + v); d cbrt(v) = dv / (3 cbrt(v)^2), on the
           // tangent below the knee (CbrtSafe).
-          const double root = v < kCbrtKnee ? knee_root : y[3 * k + c];
+          const double root = v < kCbrtKnee ? kCbrtKneeRoot : y[3 * k + c];
           const double dg = metric_ == Metric::kLog ? 1 / (1 + v) : 1 / (3 * root * root);
           g[k][c] = Jet<N>(y[3 * k + c], g[k][c].v * (cos_rows[3 * k + 2] * dg));
         }

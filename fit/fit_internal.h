@@ -115,12 +115,16 @@ inline double CbrtPositive(double x) {
   return CbrtSteps(x);
 }
 
+// cbrt at the knee, and the cube root's tangent there, which continues it below.
+inline const double kCbrtKneeRoot = std::cbrt(kCbrtKnee);
+template <class T>
+T CbrtTangent(const T& x) {
+  return T(kCbrtKneeRoot) + (x - T(kCbrtKnee)) / T(3 * kCbrtKneeRoot * kCbrtKneeRoot);
+}
+
 template <class T>
 T CbrtSafe(const T& x) {
-  if (x < T(kCbrtKnee)) {
-    const double c = std::cbrt(kCbrtKnee);
-    return T(c) + (x - T(kCbrtKnee)) / T(3 * c * c);
-  }
+  if (x < T(kCbrtKnee)) return CbrtTangent(x);
   if constexpr (std::is_same_v<T, double>) {
     return CbrtPositive(x);
   } else {
@@ -137,7 +141,6 @@ T CbrtSafe(const T& x) {
 // the root scaled back by 2^100 (exact); infinity kept; the tangent
 // selected below the knee; a NaN stays NaN.
 struct CbrtKernel {
-  double c = std::cbrt(kCbrtKnee);
   [[gnu::always_inline]] void operator()(const double* wi, const double* f, double* out) const {
     using brdfkit::Select;
     for (int ch = 0; ch < 3; ++ch) {
@@ -147,7 +150,7 @@ struct CbrtKernel {
       const double low = Select(scaled < kCbrtKnee, kCbrtKnee, scaled);
       const double root = CbrtSteps(Select(low > 1e300, 1e300, low));  // only infinity is clamped here
       const double y = Select(x == std::numeric_limits<double>::infinity(), x, Select(big, root * 0x1p100, root));
-      out[ch] = Select(x < kCbrtKnee, c + (x - kCbrtKnee) / (3 * c * c), y);
+      out[ch] = Select(x < kCbrtKnee, CbrtTangent(x), y);
     }
   }
 };
