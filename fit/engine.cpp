@@ -253,16 +253,6 @@ bool Engine::EvalDouble(const double* u, const Prepared& d, std::size_t begin, s
   return true;
 }
 
-bool Engine::EvalJacobian(const double* u, const Prepared& d, std::size_t begin, std::size_t end, double* r,
-                          double* jac) const {
-  switch (jet_) {
-    case 4: return EvalJet<4>(*b4_, u, d, begin, end, r, jac);
-    case 8: return EvalJet<8>(*b8_, u, d, begin, end, r, jac);
-    case 16: return EvalJet<16>(*b16_, u, d, begin, end, r, jac);
-    default: return EvalJet<32>(*b32_, u, d, begin, end, r, jac);
-  }
-}
-
 namespace {
 // A parameter of the sum (derivatives by the sum's slots) as one of a lobe's
 // (derivatives by the lobe's lanes, lanes[k] the sum's slot of lane k).
@@ -320,9 +310,9 @@ Rgb<Jet<N>> Engine::SumOfLobes(const LobeParams& lp, const Jet<N>* pj, const Eig
   return f;
 }
 
-template <int N>
+template <int N, class Sink>
 bool Engine::EvalJet(const Bxdf<Jet<N>>& b, const double* u, const Prepared& d, std::size_t begin,
-                     std::size_t end, double* r, double* jac) const {
+                     std::size_t end, Sink&& sink) const {
   std::array<Jet<N>, 64> uj, pj;
   for (std::size_t k = 0; k < nf_; ++k) uj[k] = Jet<N>(u[k], static_cast<int>(slot_[k]));
   ToUser(uj.data(), pj.data());
@@ -364,19 +354,82 @@ bool Engine::EvalJet(const Bxdf<Jet<N>>& b, const double* u, const Prepared& d, 
       const std::size_t q = q0 + k;
       Jet<N> res[3];
       ResidualsOfTransformed(g[k], d, q, true, res);
-      for (int c = 0; c < 3; ++c) {
-        const std::size_t row = 3 * (q - begin) + c;
-        r[row] = res[c].a;
-        if (!std::isfinite(r[row])) return false;
-        if (!jac) continue;
-        for (std::size_t j = 0; j < nf_; ++j) {
-          const double v = channel_[j] < 0 || channel_[j] == c ? res[c].v[slot_[j]] : 0.0;
-          if (!std::isfinite(v)) return false;
-          jac[row * nf_ + j] = v;
-        }
-      }
+      for (int c = 0; c < 3; ++c)
+        if (!std::isfinite(res[c].a) || !sink(3 * (q - begin) + std::size_t(c), c, res[c])) return false;
     }
   }
+  return true;
+}
+
+bool Engine::EvalJacobian(const double* u, const Prepared& d, std::size_t begin, std::size_t end, double* r,
+                          double* jac) const {
+  switch (jet_) {
+    case 4: return JacobianOfRange<4>(*b4_, u, d, begin, end, r, jac);
+    case 8: return JacobianOfRange<8>(*b8_, u, d, begin, end, r, jac);
+    case 16: return JacobianOfRange<16>(*b16_, u, d, begin, end, r, jac);
+    default: return JacobianOfRange<32>(*b32_, u, d, begin, end, r, jac);
+  }
+}
+
+bool Engine::NormalOfRange(const double* u, const Prepared& d, std::size_t begin, std::size_t end,
+                           Eigen::MatrixXd& jtj, Eigen::VectorXd& jtr, double& rr) const {
+  switch (jet_) {
+    case 4: return NormalOfRange<4>(*b4_, u, d, begin, end, jtj, jtr, rr);
+    case 8: return NormalOfRange<8>(*b8_, u, d, begin, end, jtj, jtr, rr);
+    case 16: return NormalOfRange<16>(*b16_, u, d, begin, end, jtj, jtr, rr);
+    default: return NormalOfRange<32>(*b32_, u, d, begin, end, jtj, jtr, rr);
+  }
+}
+
+template <int N>
+bool Engine::JacobianOfRange(const Bxdf<Jet<N>>& b, const double* u, const Prepared& d, std::size_t begin,
+                             std::size_t end, double* r, double* jac) const {
+  return EvalJet<N>(b, u, d, begin, end, [&](std::size_t row, int c, const Jet<N>& res) {
+    r[row] = res.a;
+    if (!jac) return true;
+    for (std::size_t j = 0; j < nf_; ++j) {
+      const double v = channel_[j] < 0 || channel_[j] == c ? res.v[slot_[j]] : 0.0;
+      if (!std::isfinite(v)) return false;
+      jac[row * nf_ + j] = v;
+    }
+    return true;
+  });
+}
+
+template <int N>
+bool Engine::NormalOfRange(const Bxdf<Jet<N>>& b, const double* u, const Prepared& d, std::size_t begin,
+                           std::size_t end, Eigen::MatrixXd& jtj, Eigen::VectorXd& jtr, double& rr) const {
+  // Row (q, c) of J holds the residual's derivative slots where parameter j
+  // acts on channel c (a scalar, or a colour parameter's c entry) and 0
+  // elsewhere, so J^T J and J^T r are sums over the channels of each
+  // channel's slot products s s^T and s r, read at the parameters' slots.
+  std::array<Eigen::Matrix<double, N, N>, 3> ss;
+  std::array<Eigen::Matrix<double, N, 1>, 3> sr;
+  for (int c = 0; c < 3; ++c) {
+    ss[std::size_t(c)].setZero();
+    sr[std::size_t(c)].setZero();
+  }
+  double sum = 0;
+  const bool done = EvalJet<N>(b, u, d, begin, end, [&](std::size_t, int c, const Jet<N>& res) {
+    ss[std::size_t(c)].noalias() += res.v * res.v.transpose();
+    sr[std::size_t(c)].noalias() += res.v * res.a;
+    sum += res.a * res.a;
+    return true;
+  });
+  if (!done) return false;
+  const Eigen::Index n = Eigen::Index(n_slots_);
+  for (int c = 0; c < 3; ++c)
+    if (!ss[std::size_t(c)].topLeftCorner(n, n).allFinite() || !sr[std::size_t(c)].head(n).allFinite()) return false;
+  rr += sum;
+  const auto acts = [&](std::size_t j, int c) { return channel_[j] < 0 || channel_[j] == c; };
+  for (std::size_t i = 0; i < nf_; ++i)
+    for (int c = 0; c < 3; ++c) {
+      if (!acts(i, c)) continue;
+      const Eigen::Index si = Eigen::Index(slot_[i]);
+      jtr[Eigen::Index(i)] += sr[std::size_t(c)][si];
+      for (std::size_t j = 0; j < nf_; ++j)
+        if (acts(j, c)) jtj(Eigen::Index(i), Eigen::Index(j)) += ss[std::size_t(c)](si, Eigen::Index(slot_[j]));
+    }
   return true;
 }
 

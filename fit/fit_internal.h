@@ -257,6 +257,13 @@ class Engine {
   bool EvalJacobian(const double* u, const Prepared& d, std::size_t begin, std::size_t end, double* r,
                     double* jac) const;
 
+  // Adds J^T J (n x n), J^T r and |r|^2 of the residuals over [begin, end)
+  // to jtj, jtr and rr, formed per channel in the Jet's derivative slots
+  // without writing the Jacobian out; false where a residual or a sum is
+  // not finite.
+  bool NormalOfRange(const double* u, const Prepared& d, std::size_t begin, std::size_t end, Eigen::MatrixXd& jtj,
+                     Eigen::VectorXd& jtr, double& rr) const;
+
  private:
   template <class T>
   void ToUser(const T* u, T* p) const;
@@ -272,9 +279,17 @@ class Engine {
   void ResidualsOfRange(const Prepared& d, std::size_t begin, std::size_t end, bool fit, double* r) const;
   template <class T>
   Rgb<T> Prediction(const Bxdf<T>& b, const T* p, const Eigen::Vector3d& wi, const Eigen::Vector3d& wo) const;
-  template <int N>
+  // The residuals over [begin, end) on Jets, each handed to
+  // sink(row, channel, residual) (row: q - begin), which returns false to stop.
+  template <int N, class Sink>
   bool EvalJet(const Bxdf<Jet<N>>& b, const double* u, const Prepared& d, std::size_t begin, std::size_t end,
-               double* r, double* jac) const;
+               Sink&& sink) const;
+  template <int N>
+  bool JacobianOfRange(const Bxdf<Jet<N>>& b, const double* u, const Prepared& d, std::size_t begin,
+                       std::size_t end, double* r, double* jac) const;
+  template <int N>
+  bool NormalOfRange(const Bxdf<Jet<N>>& b, const double* u, const Prepared& d, std::size_t begin, std::size_t end,
+                     Eigen::MatrixXd& jtj, Eigen::VectorXd& jtr, double& rr) const;
   // A lobe of a sum differentiated on a Jet of its own derivative slots: a
   // lobe depends on a few of the sum's parameters, and a Jet of all of them
   // carries zeros through every operation of every lobe.

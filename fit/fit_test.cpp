@@ -1220,6 +1220,81 @@ TEST(Fit, LobeByLobeJacobianMatchesCentralDifferences) {
   }
 }
 
+// The normal equations formed in the Jet's slots (Engine::NormalOfRange,
+// per channel, without the Jacobian) against J^T J, J^T r and |r|^2 of the
+// Jacobian written out: single lobes and sums (lobe by lobe), colour slots
+// shared, fixed and tied parameters, every metric, the robust losses, and
+// ranges that do not start at 0 or end on a block of 16.
+TEST(Fit, NormalOfRangeIsTheJacobiansNormalMatrix) {
+  struct Case {
+    const char* model;
+    const char* at;
+    const char* fix;
+    const char* tie;
+  } cases[] = {
+      {"lambert+ggx", "lambert.albedo=0.3:0.2:0.1,ggx.alpha=0.1,ggx.f0=0.9:0.6:0.3", "", ""},
+      {"lambert+ggx+ggx",
+       "lambert.albedo=0.25:0.2:0.15,ggx.alpha=0.07,ggx.f0=0.8:0.7:0.6,ggx.weight=0.9,ggx#2.alpha=0.3,"
+       "ggx#2.f0=0.5:0.5:0.6,ggx#2.weight=0.4",
+       "ggx.f0=0.04", "ggx#2.alpha=ggx.alpha"},
+      {"oren_nayar+beckmann", "oren_nayar.albedo=0.5:0.3:0.2,oren_nayar.sigma=0.3,beckmann.alpha=0.2", "", ""},
+      {"he", "", "", ""},
+  };
+  const std::pair<Metric, Loss> variants[] = {{Metric::kL2, Loss::kNone},
+                                              {Metric::kRelative, Loss::kCauchy},
+                                              {Metric::kCosine, Loss::kHuber},
+                                              {Metric::kLog, Loss::kNone},
+                                              {Metric::kCbrt, Loss::kCauchy}};
+  int compared = 0;
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.model);
+    const Model m = Model::Parse(c.model);
+    const std::vector<double> p = *c.at ? ParseParams(m.Info(), c.at) : m.Info().Defaults();
+    const Dataset d = Synthesise(m, p, 203, 31, 0.05);
+    for (const auto& [metric, loss] : variants) {
+      SCOPED_TRACE(MetricName(metric));
+      Options o;
+      o.metric = metric;
+      o.loss = loss;
+      o.fix = c.fix;
+      o.tie = c.tie;
+      std::vector<std::size_t> index(d.samples.size());
+      std::iota(index.begin(), index.end(), std::size_t(0));
+      const Prepared prep = Prepare(d, index, o);
+      const ModelEvaluators evaluators(m);
+      const Engine e(evaluators, o, 0.05, MakeLayout(m.Info(), o));
+      // Away from the truth, so that the residuals are not noise alone.
+      std::vector<double> u = e.ToInternal(p);
+      for (std::size_t k = 0; k < u.size(); ++k) u[k] += 0.05 * double(k % 3 + 1) * (k % 2 ? -1 : 1);
+      const std::size_t n = e.n(), begin = 5, end = prep.size() - 3, rows = 3 * (end - begin);
+      std::vector<double> r(rows), j(rows * n);
+      ASSERT_TRUE(e.EvalJacobian(u.data(), prep, begin, end, r.data(), j.data()));
+      const Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> J(
+          j.data(), Eigen::Index(rows), Eigen::Index(n));
+      const Eigen::Map<const Eigen::VectorXd> rv(r.data(), Eigen::Index(rows));
+      const Eigen::MatrixXd jtj = J.transpose() * J;
+      const Eigen::VectorXd jtr = J.transpose() * rv;
+      // Two ranges added up, as the callers sum blocks.
+      Eigen::MatrixXd a = Eigen::MatrixXd::Zero(Eigen::Index(n), Eigen::Index(n));
+      Eigen::VectorXd b = Eigen::VectorXd::Zero(Eigen::Index(n));
+      double rr = 0;
+      ASSERT_TRUE(e.NormalOfRange(u.data(), prep, begin, 77, a, b, rr));
+      ASSERT_TRUE(e.NormalOfRange(u.data(), prep, 77, end, a, b, rr));
+      EXPECT_NEAR(rr, rv.squaredNorm(), 1e-13 * rv.squaredNorm());
+      for (Eigen::Index x = 0; x < Eigen::Index(n); ++x) {
+        ASSERT_GT(jtj(x, x), 0) << x;
+        EXPECT_NEAR(b[x] / std::sqrt(jtj(x, x)), jtr[x] / std::sqrt(jtj(x, x)), 1e-12 * rv.norm()) << x;
+        for (Eigen::Index y = 0; y < Eigen::Index(n); ++y) {
+          const double scale = std::sqrt(jtj(x, x) * jtj(y, y));
+          EXPECT_NEAR(a(x, y) / scale, jtj(x, y) / scale, 1e-13) << x << ", " << y;
+        }
+      }
+      ++compared;
+    }
+  }
+  EXPECT_EQ(compared, 20);
+}
+
 // A second specular lobe that the start search leaves off on a large table
 // (the outside material, whose haze the one lobe and the diffuse term
 // absorb in the search's basins): the final

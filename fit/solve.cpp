@@ -91,16 +91,12 @@ class CompressedChunkCost final : public ceres::CostFunction {
       r[0] = Eigen::Map<const Eigen::VectorXd>(full.data(), Eigen::Index(m)).norm();
       return true;
     }
-    std::vector<double> res(m), j(m * n);
-    if (!e_->EvalJacobian(x[0], *d_, begin_, end_, res.data(), j.data())) return false;
     using RowMajor = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
     const Eigen::Index k = Eigen::Index(n);
-    const Eigen::Map<const RowMajor> J(j.data(), Eigen::Index(m), k);
-    const Eigen::Map<const Eigen::VectorXd> rv(res.data(), Eigen::Index(m));
     Eigen::MatrixXd jtj = Eigen::MatrixXd::Zero(k, k);
-    jtj.selfadjointView<Eigen::Lower>().rankUpdate(J.transpose());
-    jtj = jtj.selfadjointView<Eigen::Lower>();
-    const Eigen::VectorXd jtr = J.transpose() * rv;
+    Eigen::VectorXd jtr = Eigen::VectorXd::Zero(k);
+    double rr = 0;
+    if (!e_->NormalOfRange(x[0], *d_, begin_, end_, jtj, jtr, rr)) return false;
     // With S the Jacobi scaling (unit diagonal; the columns' scales span
     // 1e20 where the cube root's derivative is steep), the Cholesky
     // factorisation with complete pivoting S J^T J S = P^T R^T R P (stable
@@ -142,7 +138,7 @@ class CompressedChunkCost final : public ceres::CostFunction {
     if (!b.allFinite() || !z.allFinite()) return false;
     Eigen::Map<Eigen::VectorXd>(r, k) = z;
     // |r|^2 less the part z carries; never below zero by rounding.
-    r[n] = std::sqrt(std::max(rv.squaredNorm() - z.squaredNorm(), 0.0));
+    r[n] = std::sqrt(std::max(rr - z.squaredNorm(), 0.0));
     Eigen::Map<RowMajor> out(jac[0], k + 1, k);
     out.topRows(k) = b;
     out.row(k).setZero();

@@ -19,16 +19,17 @@ void NormalEquations(const Engine& e, const Prepared& d, const std::vector<doubl
   // [J^T J, J^T r] summed as one n x (n + 1) matrix.
   const Eigen::MatrixXd sum = ChunkedSum(
       blocks, 8, Eigen::MatrixXd(Eigen::MatrixXd::Zero(n, n + 1)), [&](std::size_t first, std::size_t last) {
-        Eigen::MatrixXd part = Eigen::MatrixXd::Zero(n, n + 1);
-        std::vector<double> r(3 * chunk), jac(3 * chunk * n);
+        Eigen::MatrixXd part = Eigen::MatrixXd::Zero(n, n + 1), jtj_b(n, n);
+        Eigen::VectorXd jtr_b(n);
         for (std::size_t b = first; b < last; ++b) {
           const std::size_t begin = b * chunk, end = std::min(d.size(), begin + chunk);
-          e.EvalJacobian(u.data(), d, begin, end, r.data(), jac.data());
-          const auto m = static_cast<Eigen::Index>(3 * (end - begin));
-          Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> J(
-              jac.data(), m, static_cast<Eigen::Index>(n));
-          part.leftCols(Eigen::Index(n)).noalias() += J.transpose() * J;
-          part.col(Eigen::Index(n)).noalias() += J.transpose() * Eigen::Map<const Eigen::VectorXd>(r.data(), m);
+          jtj_b.setZero();
+          jtr_b.setZero();
+          double rr = 0;
+          // A block with a value that is not finite adds NaN: the normal matrix says it is unusable.
+          if (!e.NormalOfRange(u.data(), d, begin, end, jtj_b, jtr_b, rr)) jtj_b.fill(std::nan(""));
+          part.leftCols(Eigen::Index(n)) += jtj_b;
+          part.col(Eigen::Index(n)) += jtr_b;
         }
         return part;
       });
