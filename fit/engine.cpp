@@ -144,9 +144,13 @@ void Engine::ResidualsOf(const Rgb<T>& f, const Prepared& d, std::size_t q, doub
 template <class T>
 void Engine::ResidualsOfTransformed(const Rgb<T>& g, const Prepared& d, std::size_t q, bool fit, T* out) const {
   for (int c = 0; c < 3; ++c) {
-    const T r = g[c] - T(d.target[q][c]);
-    if (fit) out[c] = Robust(loss_, loss_scale_, d.w_fit.empty() ? r : T(T(d.w_fit[q][c]) * r));
-    else out[c] = d.w_fit.empty() && d.w_metric.empty() ? r : T(T(d.WMetric(q)[c]) * r);
+    T r = g[c] - T(d.target[q][c]);
+    if (fit) {
+      if (!d.w_fit.empty()) r *= d.w_fit[q][c];
+      out[c] = loss_ == Loss::kNone ? r : Robust(loss_, loss_scale_, r);
+    } else {
+      out[c] = d.w_fit.empty() && d.w_metric.empty() ? r : T(T(d.WMetric(q)[c]) * r);
+    }
   }
 }
 
