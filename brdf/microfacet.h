@@ -34,6 +34,7 @@
 #include "brdf/core.h"
 
 #include <string>
+#include <type_traits>
 
 namespace brdfkit {
 
@@ -337,6 +338,7 @@ class MicrofacetModel {
   template <typename T, typename V = T>
   Rgb<T> Eval(const T* p, const Vec3<V>& wi, const Vec3<V>& wo) const {
     if (!SameUpperHemisphere(wi, wo)) return Rgb<T>::Constant(T(0));
+    if constexpr (kBatchKernel && !std::is_same_v<T, V>) return EvalOfKernel(p, wi, wo);
     const Vec3<V> wm = HalfVector(wi, wo);
     const T scalar = D(p, wm) * G2(p, wi, wo, wm) / V(V(4) * wi.z() * wo.z());
     return Fresnel(p, V(wi.dot(wm))) * scalar;
@@ -358,6 +360,41 @@ class MicrofacetModel {
   // nearly opposite pairs).
   static constexpr bool kBatchKernel =
       Config::kDist == MicrofacetDistribution::kGgx && Config::kFresnel == FresnelForm::kSchlick;
+
+  // Eval in the kernel's form (GgxKernel) for parameters of a type other
+  // than the directions' (a fit's Jacobian: Jet parameters, double
+  // directions): every term of the directions alone in V, four divisions
+  // (one per Jet division or square root) on T where Eval's form takes eight.
+  template <typename T, typename V>
+    requires kBatchKernel
+  Rgb<T> EvalOfKernel(const T* p, const Vec3<V>& wi, const Vec3<V>& wo) const {
+    using std::sqrt;
+    const Vec3<V> h = wi + wo;
+    const V h2 = h.squaredNorm(), q = V(1) / h2;  // h2 > 0: both directions above the horizon
+    const V di = wi.dot(h), dout = wo.dot(h);
+    if (!(di > V(0) && dout > V(0))) return Rgb<T>::Constant(T(0));  // facet faces away from one side
+    T e, si, so, area;
+    if constexpr (Config::kAniso) {
+      T ax, ay;
+      Roughness(p, ax, ay);
+      const T ax2 = ax * ax, ay2 = ay * ay;
+      e = V(h.x() * h.x() * q) / ax2 + V(h.y() * h.y() * q) / ay2 + V(h.z() * h.z() * q);
+      si = sqrt(ax2 * V(wi.x() * wi.x()) + ay2 * V(wi.y() * wi.y()) + V(wi.z() * wi.z()));
+      so = sqrt(ax2 * V(wo.x() * wo.x()) + ay2 * V(wo.y() * wo.y()) + V(wo.z() * wo.z()));
+      area = ax * ay;
+    } else {
+      const T a2 = At(p, kAlphaX) * At(p, kAlphaX);
+      e = V((h.x() * h.x() + h.y() * h.y()) * q) / a2 + V(h.z() * h.z() * q);
+      si = sqrt(a2 * V(wi.x() * wi.x() + wi.y() * wi.y()) + V(wi.z() * wi.z()));
+      so = sqrt(a2 * V(wo.x() * wo.x() + wo.y() * wo.y()) + V(wo.z() * wo.z()));
+      area = a2;
+    }
+    T g;
+    if constexpr (Config::kSmith == SmithForm::kSeparable) g = (V(wi.z()) + si) * (V(wo.z()) + so);
+    else g = V(wo.z()) * si + V(wi.z()) * so;
+    const V scale = Config::kSmith == SmithForm::kSeparable ? V(kPi) : V(2 * kPi);
+    return Fresnel(p, V(di / sqrt(h2))) * (T(1) / (scale * area * e * e * g));
+  }
 
   template <typename T>
     requires(std::is_floating_point_v<T> && kBatchKernel)
