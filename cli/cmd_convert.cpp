@@ -23,6 +23,11 @@ void RegisterConvert(CLI::App& app) {
   cmd->add_option("--rgl-theta-i", o.rgl.theta_i,
                   "RGL: incident elevation slices, denser toward grazing (default: 80 isotropic, 32 anisotropic)");
   cmd->add_option("--rgl-phi-i", o.rgl.phi_i, "RGL: incident azimuth slices; 0 isotropic (default: 24 for anisotropic sources)");
+  cmd->add_option("--rgl-symmetry", o.rgl.symmetry,
+                  "RGL, anisotropic: 2 or 4 to store the incident azimuths over pi or pi / 2 of a source unchanged by a "
+                  "turn by pi (2) or by both mirrors x -> -x, y -> -y (4), slices that much denser; read by Mitsuba 3, "
+                  "refused by powitacq and pbrt-v4")
+      ->capture_default_str();
   cmd->add_option("--rgl-samples", o.rgl.samples,
                   "RGL: value table nodes per axis, per slice (square: the format's readers require it; default: 208 "
                   "isotropic, 64 anisotropic)");

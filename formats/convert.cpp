@@ -3,7 +3,6 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
-#include <random>
 #include <stdexcept>
 
 #include "brdf/astm.h"
@@ -102,16 +101,9 @@ Source LoadSource(const std::string& path) {
 }
 
 bool IsAnisotropic(const BrdfFunction& f) {
-  std::mt19937 rng(7);
-  std::uniform_real_distribution<double> theta(0.05, 1.4), phi(0.0, 2 * kPi);
-  for (int k = 0; k < 64; ++k) {
-    const double theta_i = theta(rng), phi_i = phi(rng), theta_o = theta(rng), phi_o = phi(rng);
-    const Rgb<double> a = f(SphericalDirection(theta_i, phi_i), SphericalDirection(theta_o, phi_o));
-    for (double turn : {0.9, 2.3}) {
-      const Rgb<double> b = f(SphericalDirection(theta_i, phi_i + turn), SphericalDirection(theta_o, phi_o + turn));
-      // Relative to the larger value; an absolute 1e-12 for values near 0.
-      if (((a - b).abs() > 1e-6 * a.abs().max(b.abs()) + 1e-12).any()) return true;
-    }
+  for (double turn : {0.9, 2.3}) {
+    const Eigen::Matrix3d r = Eigen::AngleAxisd(turn, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    if (!InvariantUnder(f, [&r](const Eigen::Vector3d& w) { return Eigen::Vector3d(r * w); })) return true;
   }
   return false;
 }
@@ -152,6 +144,7 @@ nlohmann::json WriteFormat(const std::string& path, const BrdfFunction& f, const
       const RglAccuracy acc = MeasureRglAccuracy(back, f);
       t.Write(path);
       j["resolution"] = {{"theta_i", r.theta_i}, {"theta_max_deg", r.theta_max_deg}, {"phi_i", r.phi_i},
+                         {"symmetry", r.symmetry},
                          {"ndf", r.ndf}, {"sigma", r.sigma}, {"vndf", r.vndf}, {"vndf_theta", r.vndf_theta}, {"samples", r.samples}};
       j["isotropic"] = r.phi_i == 0;
       j["reconstruction"] = {{"max_relative", acc.max_relative}, {"p99_relative", acc.p99_relative},

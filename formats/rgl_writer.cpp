@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <limits>
+#include <random>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -186,6 +187,19 @@ void AlignedRow(double theta_i, double phi, double gap, double band_width, const
 
 }  // namespace
 
+bool InvariantUnder(const BrdfFunction& f, const std::function<Eigen::Vector3d(const Eigen::Vector3d&)>& map) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> theta(0.05, 1.4), phi(0.0, 2 * kPi);
+  for (int k = 0; k < 64; ++k) {
+    const double theta_i = theta(rng), phi_i = phi(rng), theta_o = theta(rng), phi_o = phi(rng);
+    const Eigen::Vector3d wi = RglBsdf::Direction(theta_i, phi_i), wo = RglBsdf::Direction(theta_o, phi_o);
+    const Rgb<double> a = f(wi, wo), b = f(map(wi), map(wo));
+    // Relative to the larger value; an absolute 1e-12 for values near 0.
+    if (((a - b).abs() > 1e-6 * a.abs().max(b.abs()) + 1e-12).any()) return false;
+  }
+  return true;
+}
+
 RglOptions WithDefaults(RglOptions o) {
   // Isotropic files: the resolution at which every source of the accuracy
   // measure stays within 1 % (bench/RESULTS.md: value rows and vndf rows
@@ -206,6 +220,18 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
   const RglOptions o = WithDefaults(options);
   Check(o.theta_i >= 2 && o.theta_i <= 1024, "theta_i slices must be 2 to 1024");
   Check(o.phi_i == 0 || (o.phi_i >= 3 && o.phi_i <= 1024), "phi_i slices must be 0 (isotropic) or 3 to 1024");
+  Check(o.symmetry == 1 || o.symmetry == 2 || o.symmetry == 4,
+        "symmetry must be 1 (the whole circle of incident azimuths), 2 or 4, got " + std::to_string(o.symmetry));
+  Check(o.symmetry == 1 || o.phi_i > 0, "symmetry " + std::to_string(o.symmetry) +
+                                            " applies to anisotropic files (phi_i slices); an isotropic file holds one slice");
+  if (o.symmetry == 2)
+    Check(InvariantUnder(f, [](const Eigen::Vector3d& w) { return Eigen::Vector3d(-w.x(), -w.y(), w.z()); }),
+          "symmetry 2: the source changes under a turn by pi about the normal, which the readers' fold assumes it does not");
+  if (o.symmetry == 4)
+    for (int axis : {0, 1})
+      Check(InvariantUnder(f, [axis](Eigen::Vector3d w) { return w[axis] = -w[axis], w; }),
+            std::string("symmetry 4: the source changes under the mirror ") + (axis == 0 ? "x -> -x" : "y -> -y") +
+                ", which the readers' fold assumes it does not");
   Check(o.theta_max_deg > 0 && o.theta_max_deg <= kRglThetaMaxDeg,
         "theta_max must be in (0, " + FormatDouble(kRglThetaMaxDeg) + "] degrees, got " + FormatDouble(o.theta_max_deg) +
             " (closer to grazing a slice has no room for the horizon's band and the rest)");
@@ -290,7 +316,9 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
   if (iso) {
     phi_nodes = {0.0};
   } else {
-    for (int k = 0; k < o.phi_i; ++k) phi_nodes.push_back(static_cast<float>(-kPi + 2 * kPi * k / (o.phi_i - 1)));
+    // From -pi over 2 pi / symmetry, where the readers fold a reduced file's queries.
+    for (int k = 0; k < o.phi_i; ++k)
+      phi_nodes.push_back(static_cast<float>(-kPi + 2 * kPi / o.symmetry * k / (o.phi_i - 1)));
   }
   const std::size_t np = phi_nodes.size(), nt = theta_nodes.size();
   auto slice_wi = [&](std::size_t a, std::size_t b) { return RB::Direction(theta_nodes[b], iso ? 0.0 : phi_nodes[a]); };

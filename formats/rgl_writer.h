@@ -72,7 +72,14 @@ struct RglOptions {
   // phi_i slice, a coarser one.
   int theta_i = 0;           // incident elevation slices over [0, theta_max], denser toward grazing; 0: 80 isotropic, 32 anisotropic
   double theta_max_deg = kRglThetaMaxDeg;  // the last slice; (0, kRglThetaMaxDeg]
-  int phi_i = 0;             // 0: isotropic; otherwise azimuth slices over [-pi, pi] (the last repeats the first)
+  int phi_i = 0;             // 0: isotropic; otherwise azimuth slices over [-pi, -pi + 2 pi / symmetry]
+  // Anisotropic files: 1, the incident azimuths of the whole circle (the
+  // last slice repeats the first); 2 or 4, those from -pi over pi or pi / 2
+  // of a source unchanged by a turn by pi (2) or by both mirrors x -> -x
+  // and y -> -y (4), which the format's readers fold queries into (Mitsuba
+  // 3 reads such files; powitacq and pbrt-v4 refuse them): the same slices
+  // 2 or 4 times as dense. MakeRgl checks the source's symmetry.
+  int symmetry = 1;
   int ndf = 512;             // ndf resolution (square)
   int sigma = 64;            // sigma resolution (square)
   int vndf = 0;              // vndf rows per slice (azimuth of wm); 0: 256 isotropic, 64 anisotropic
@@ -87,8 +94,12 @@ struct RglOptions {
 // The options with the automatic resolutions (0) filled in.
 RglOptions WithDefaults(RglOptions options);
 
-// Throws std::invalid_argument on bad options, std::runtime_error on
-// non-finite values of f.
+// Whether f stays the same (1e-6 relative, 1e-12 absolute) when both
+// directions are mapped by `map`, at 64 fixed random direction pairs.
+bool InvariantUnder(const BrdfFunction& f, const std::function<Eigen::Vector3d(const Eigen::Vector3d&)>& map);
+
+// Throws std::invalid_argument on bad options (a symmetry the source lacks
+// included), std::runtime_error on non-finite values of f.
 TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options);
 // Atomic: the complete file or nothing.
 void WriteRgl(const std::string& path, const BrdfFunction& f, const RglOptions& options);

@@ -402,7 +402,9 @@ def write(path, data, format=None, *, rgl=None, step_deg=5.0, phi_i=None, anisot
         RGL resolutions, the convert command's --rgl-* options: theta_i,
         phi_i (0 isotropic; default 0, or 24 for an anisotropic model),
         ndf, sigma, vndf, vndf_theta, samples (the value tables are samples x
-        samples: the format's readers require square ones).
+        samples: the format's readers require square ones), symmetry (1; 2
+        or 4 for the incident azimuths over pi or pi / 2 of an anisotropic
+        source unchanged by a turn by pi or by both mirrors).
     step_deg : float
         ASTM and CSV grid step in degrees (0.5 to 45).
     phi_i : int, optional

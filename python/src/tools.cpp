@@ -385,7 +385,7 @@ std::string WriteModel(const std::string& path, const py::object& model, const p
       {"theta_i", &formats::RglOptions::theta_i}, {"phi_i", &formats::RglOptions::phi_i},
       {"ndf", &formats::RglOptions::ndf},         {"sigma", &formats::RglOptions::sigma},
       {"vndf", &formats::RglOptions::vndf},       {"vndf_theta", &formats::RglOptions::vndf_theta},
-      {"samples", &formats::RglOptions::samples}};
+      {"samples", &formats::RglOptions::samples}, {"symmetry", &formats::RglOptions::symmetry}};
   for (const auto& [name, value] : rgl) {
     const auto it = fields.find(name);
     if (it == fields.end()) {

@@ -183,12 +183,19 @@ def directions(n, seed):
      {"theta_i": 9, "ndf": 48, "sigma": 16, "vndf": 24, "vndf_theta": 20, "samples": 18}),
     (brdfkit.Model("lambert+ggx_aniso", {"lambert.albedo": 0.3, "ggx_aniso.alpha_x": 0.15, "ggx_aniso.alpha_y": 0.4}),
      {"theta_i": 6, "phi_i": 7, "ndf": 40, "sigma": 12, "vndf": 16, "vndf_theta": 12, "samples": 12}),
+    # A quarter of the azimuths (the source has both mirror symmetries): the
+    # reference folds the queries into it as Mitsuba 3 does.
+    (brdfkit.Model("lambert+ggx_aniso", {"lambert.albedo": 0.3, "ggx_aniso.alpha_x": 0.15, "ggx_aniso.alpha_y": 0.4}),
+     {"theta_i": 6, "phi_i": 5, "symmetry": 4, "ndf": 40, "sigma": 12, "vndf": 16, "vndf_theta": 12, "samples": 12}),
+    (brdfkit.Model("ggx_aniso", {"alpha_x": 0.3, "alpha_y": 0.1}),
+     {"theta_i": 6, "phi_i": 4, "symmetry": 2, "ndf": 40, "sigma": 12, "vndf": 16, "vndf_theta": 12, "samples": 12}),
 ])
 def test_files_brdfkit_writes_reconstruct_as_the_reference_computes(tmp, source, rgl):
     path = tmp / "written.bsdf"
     brdfkit.write(path, source, rgl=rgl)
     ref = ReferenceRgl(path.read_bytes())
     assert ref.isotropic == ("phi_i" not in rgl)
+    assert ref.reduction == rgl.get("symmetry", 1)
     wi, wo = directions(20000, seed=11)
     want, got = ref.fr_cos(wi, wo), brdfkit_fr_cos(path, wi, wo)
     # brdfkit keeps the vndf's normalised density in float (as the format's
@@ -290,6 +297,12 @@ def test_the_format_loaders_accept_what_brdfkit_writes(tmp, source, rgl):
     brdfkit.write(path, source, rgl=rgl)
     f = parse_tensor_file(path.read_bytes())
     assert loaders_refuse(f) == []
+    # A file of a quarter of the azimuths passes Mitsuba 3's checks; powitacq
+    # refuses it, as brdfkit's help and README say.
+    if rgl is not None:
+        reduced = tmp / "reduced.bsdf"
+        brdfkit.write(reduced, source, rgl={**rgl, "phi_i": 5, "symmetry": 4})
+        assert loaders_refuse(parse_tensor_file(reduced.read_bytes())) == ["azimuths over the circle"]
     # The check itself refuses the tables brdfkit wrote before they were square.
     f["rgb"], f["luminance"] = f["rgb"][..., :-1], f["luminance"][..., :-1]
     assert loaders_refuse(f) == ["luminance: slices, square", "rgb: slices, 3 channels, square"]
