@@ -392,7 +392,7 @@ bool Engine::JacobianOfRange(const Bxdf<Jet<N>>& b, const double* u, const Prepa
     r[row] = res.a;
     if (!jac) return true;
     for (std::size_t j = 0; j < nf_; ++j) {
-      const double v = channel_[j] < 0 || channel_[j] == c ? res.v[slot_[j]] : 0.0;
+      const double v = Acts(j, c) ? res.v[slot_[j]] : 0.0;
       if (!std::isfinite(v)) return false;
       jac[row * nf_ + j] = v;
     }
@@ -425,14 +425,13 @@ bool Engine::NormalOfRange(const Bxdf<Jet<N>>& b, const double* u, const Prepare
   for (int c = 0; c < 3; ++c)
     if (!ss[std::size_t(c)].topLeftCorner(n, n).allFinite() || !sr[std::size_t(c)].head(n).allFinite()) return false;
   rr += sum;
-  const auto acts = [&](std::size_t j, int c) { return channel_[j] < 0 || channel_[j] == c; };
   for (std::size_t i = 0; i < nf_; ++i)
     for (int c = 0; c < 3; ++c) {
-      if (!acts(i, c)) continue;
+      if (!Acts(i, c)) continue;
       const Eigen::Index si = Eigen::Index(slot_[i]);
       jtr[Eigen::Index(i)] += sr[std::size_t(c)][si];
       for (std::size_t j = 0; j < nf_; ++j)
-        if (acts(j, c)) jtj(Eigen::Index(i), Eigen::Index(j)) += ss[std::size_t(c)](si, Eigen::Index(slot_[j]));
+        if (Acts(j, c)) jtj(Eigen::Index(i), Eigen::Index(j)) += ss[std::size_t(c)](si, Eigen::Index(slot_[j]));
     }
   return true;
 }

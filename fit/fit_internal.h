@@ -284,6 +284,9 @@ class Engine {
   template <int N, class Sink>
   bool EvalJet(const Bxdf<Jet<N>>& b, const double* u, const Prepared& d, std::size_t begin, std::size_t end,
                Sink&& sink) const;
+  // Whether free parameter j acts on channel c: a scalar, or a colour
+  // parameter's c entry (its shared slot carries channel c's derivative).
+  bool Acts(std::size_t j, int c) const { return channel_[j] < 0 || channel_[j] == c; }
   template <int N>
   bool JacobianOfRange(const Bxdf<Jet<N>>& b, const double* u, const Prepared& d, std::size_t begin,
                        std::size_t end, double* r, double* jac) const;

@@ -67,6 +67,13 @@ std::vector<std::pair<Eigen::Vector3d, Eigen::Vector3d>> Directions(int n, std::
   return out;
 }
 
+// Every sample of d prepared under o (no angle cut).
+Prepared PrepareAll(const Dataset& d, const Options& o) {
+  std::vector<std::size_t> index(d.samples.size());
+  std::iota(index.begin(), index.end(), std::size_t(0));
+  return Prepare(d, index, o);
+}
+
 // Samples of a model; noise > 0 adds Gaussian noise of standard deviation
 // noise * f + floor, recorded as sigma.
 Dataset Synthesise(const Model& m, const std::vector<double>& p, int n, std::uint64_t seed, double noise = 0,
@@ -986,18 +993,13 @@ struct CbrtProblem {
     o.metric = Metric::kCbrt;
     return o;
   }
-  static Prepared All(const Dataset& d, const Options& o) {
-    std::vector<std::size_t> index(d.samples.size());
-    std::iota(index.begin(), index.end(), std::size_t(0));
-    return Prepare(d, index, o);
-  }
   explicit CbrtProblem(std::uint64_t seed)
       : d(Synthesise(m,
                      ParseParams(m.Info(), "lambert.albedo=0.3:0.2:0.1,ggx.alpha=0.06,ggx.f0=0.9:0.7:0.5,ggx.weight=0.8,"
                                            "ggx#2.alpha=0.4,ggx#2.f0=0.5:0.5:0.6,ggx#2.weight=0.3"),
                      900, seed, 0.05)),
         o(CbrtOptions()),
-        prep(All(d, o)),
+        prep(PrepareAll(d, o)),
         e(evaluators, o, 1.0, MakeLayout(m.Info(), o)) {}
 };
 
@@ -1108,9 +1110,7 @@ TEST(Fit, EndPhasePausesWhereTheCostCreeps) {
   o.metric = Metric::kCbrt;
   const ModelEvaluators evaluators{m};
   const Engine e(evaluators, o, 1.0, MakeLayout(m.Info(), o));
-  std::vector<std::size_t> index(d.samples.size());
-  std::iota(index.begin(), index.end(), std::size_t(0));
-  const Prepared prep = Prepare(d, index, o);
+  const Prepared prep = PrepareAll(d, o);
   const std::vector<double> start = e.ToInternal(ParseParams(
       m.Info(), "lambert.albedo=0.3:0.25:0.2,ggx.alpha=0.07,ggx.f0=0.04,ggx.weight=0.9,ggx#2.alpha=0.072,"
                 "ggx#2.f0=0.8,ggx#2.weight=0.05,ggx#3.alpha=0.35,ggx#3.f0=0.04,ggx#3.weight=0.25"));
@@ -1190,9 +1190,7 @@ TEST(Fit, LobeByLobeJacobianMatchesCentralDifferences) {
     o.metric = Metric::kCbrt;
     o.fix = c.fix;
     o.tie = c.tie;
-    std::vector<std::size_t> index(d.samples.size());
-    std::iota(index.begin(), index.end(), std::size_t(0));
-    const Prepared prep = Prepare(d, index, o);
+    const Prepared prep = PrepareAll(d, o);
     const ModelEvaluators evaluators(m);
     const Engine e(evaluators, o, 1.0, MakeLayout(m.Info(), o));
     const std::vector<double> u = e.ToInternal(p);
@@ -1258,9 +1256,7 @@ TEST(Fit, NormalOfRangeIsTheJacobiansNormalMatrix) {
       o.loss = loss;
       o.fix = c.fix;
       o.tie = c.tie;
-      std::vector<std::size_t> index(d.samples.size());
-      std::iota(index.begin(), index.end(), std::size_t(0));
-      const Prepared prep = Prepare(d, index, o);
+      const Prepared prep = PrepareAll(d, o);
       const ModelEvaluators evaluators(m);
       const Engine e(evaluators, o, 0.05, MakeLayout(m.Info(), o));
       // Away from the truth, so that the residuals are not noise alone.
