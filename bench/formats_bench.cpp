@@ -34,7 +34,7 @@ std::string File(const std::string& name, formats::ConvertOptions o = {}) {
 
 formats::ConvertOptions Aniso() {
   formats::ConvertOptions o;
-  o.rgl.phi_i = 24;
+  o.rgl.phi_i = formats::kRglAnisotropicPhiI;
   return o;
 }
 formats::ConvertOptions Fine() {

@@ -22,7 +22,9 @@ void RegisterConvert(CLI::App& app) {
   AddModelOptions(cmd, margs, false);
   cmd->add_option("--rgl-theta-i", o.rgl.theta_i,
                   "RGL: incident elevation slices, denser toward grazing (default: 80 isotropic, 32 anisotropic)");
-  cmd->add_option("--rgl-phi-i", o.rgl.phi_i, "RGL: incident azimuth slices; 0 isotropic (default: 24 for anisotropic sources)");
+  cmd->add_option("--rgl-phi-i", o.rgl.phi_i,
+                  "RGL: incident azimuth slices; 0 isotropic (default for anisotropic sources: 64, or 33 and 17 with "
+                  "--rgl-symmetry 2 and 4, the same spacing)");
   cmd->add_option("--rgl-symmetry", o.rgl.symmetry,
                   "RGL, anisotropic: 2 or 4 to store the incident azimuths over pi or pi / 2 of a source unchanged by a "
                   "turn by pi (2) or by both mirrors x -> -x, y -> -y (4), slices that much denser; read by Mitsuba 3, "
@@ -30,11 +32,11 @@ void RegisterConvert(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--rgl-samples", o.rgl.samples,
                   "RGL: value table nodes per axis, per slice (square: the format's readers require it; default: 208 "
-                  "isotropic, 64 anisotropic)");
+                  "isotropic, 40 anisotropic)");
   cmd->add_option("--rgl-vndf", o.rgl.vndf,
-                  "RGL: vndf nodes along the azimuth of the normal (default: 256 isotropic, 64 anisotropic)");
+                  "RGL: vndf nodes along the azimuth of the normal (default: 256 isotropic, 48 anisotropic)");
   cmd->add_option("--rgl-vndf-theta", o.rgl.vndf_theta,
-                  "RGL: vndf nodes along the elevation of the normal (default: as --rgl-vndf if given, else 128 isotropic, 64 "
+                  "RGL: vndf nodes along the elevation of the normal (default: as --rgl-vndf if given, else 128 isotropic, 48 "
                   "anisotropic)");
   cmd->add_option("--rgl-ndf", o.rgl.ndf, "RGL: ndf nodes per axis")->capture_default_str();
   cmd->add_option("--step", o.step_deg, "ASTM / CSV: grid step in degrees")->capture_default_str();

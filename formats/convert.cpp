@@ -137,7 +137,7 @@ nlohmann::json WriteFormat(const std::string& path, const BrdfFunction& f, const
     }
     case Format::kRgl: {
       RglOptions r = o.rgl;
-      if (r.phi_i < 0) r.phi_i = o.anisotropic ? 24 : 0;
+      if (r.phi_i < 0) r.phi_i = o.anisotropic ? RglAnisotropicSlices(r.symmetry) : 0;
       r = WithDefaults(r);
       const TensorFile t = MakeRgl(f, r);
       const RglBsdf back = RglBsdf::FromTensors(t, "RGL file '" + path + "'");

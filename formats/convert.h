@@ -39,7 +39,7 @@ Source LoadSource(const std::string& path);
 bool IsAnisotropic(const BrdfFunction& f);
 
 struct ConvertOptions {
-  RglOptions rgl{.phi_i = -1};  // rgl.phi_i < 0: isotropic unless the source is anisotropic (then 24)
+  RglOptions rgl{.phi_i = -1};  // rgl.phi_i < 0: isotropic unless the source is anisotropic (then RglAnisotropicSlices)
   double step_deg = 5;        // ASTM / CSV grid: theta_i, theta_o 0..85 and phi_o 0..360 in this step
   int phi_i = -1;             // ASTM / CSV incident azimuths over [0, 360); < 0: 1, or 8 for anisotropic sources
   bool anisotropic = false;

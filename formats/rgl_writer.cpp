@@ -200,19 +200,25 @@ bool InvariantUnder(const BrdfFunction& f, const std::function<Eigen::Vector3d(c
   return true;
 }
 
+int RglAnisotropicSlices(int symmetry) {
+  const int k = std::max(symmetry, 1), intervals = kRglAnisotropicPhiI - 1;
+  return 1 + (intervals + k - 1) / k;
+}
+
 RglOptions WithDefaults(RglOptions o) {
   // Isotropic files: the resolution at which every source of the accuracy
   // measure stays within 1 % (bench/RESULTS.md: value rows and vndf rows
   // follow the horizon's sweep in azimuth, slices its motion with theta_i,
   // 512 ndf nodes the steep tails of rough Beckmann lobes). Anisotropic
-  // files store the vndf and values once per phi_i slice: 24 x 32 slices of
-  // 64^2.
+  // files store the vndf and values once per phi_i slice: 32 theta_i
+  // slices of a 48^2 vndf and 40^2 values, kRglAnisotropicPhiI slices of
+  // them when convert chooses.
   // vndf columns left automatic follow rows given explicitly (a square table).
   const bool iso = o.phi_i == 0;
   if (o.theta_i == 0) o.theta_i = iso ? 80 : 32;
-  if (o.vndf_theta == 0) o.vndf_theta = o.vndf != 0 ? o.vndf : iso ? 128 : 64;
-  if (o.vndf == 0) o.vndf = iso ? 256 : 64;
-  if (o.samples == 0) o.samples = iso ? 208 : 64;
+  if (o.vndf_theta == 0) o.vndf_theta = o.vndf != 0 ? o.vndf : iso ? 128 : 48;
+  if (o.vndf == 0) o.vndf = iso ? 256 : 48;
+  if (o.samples == 0) o.samples = iso ? 208 : 40;
   return o;
 }
 
@@ -432,7 +438,7 @@ RglAccuracy MeasureRglAccuracy(const RglBsdf& file, const BrdfFunction& f, doubl
   where << "f cos(theta_o) above " << 100 * threshold << " % of its maximum over wo";
   if (!incident.empty())
     where << ", theta_i " << incident.front()[0] << ".." << incident.back()[0] << " deg in steps of " << step_deg
-          << (file.isotropic ? "" : ", phi_i 0, 50 .. 300 deg");
+          << (file.isotropic ? "" : ", phi_i 0, 50 .. 350 deg");
   where << ", wo on a 1 x 2 deg grid (theta_o 0.5, 1.5 ..) below theta_o " << theta_o_max_deg << " deg";
   acc.where = where.str();
   // The errors of each incident direction, measured side by side.

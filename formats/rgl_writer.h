@@ -65,6 +65,17 @@ using BrdfFunction = std::function<Rgb<double>(const Eigen::Vector3d& wi, const 
 // between 85 and 88-88.5 degrees, bench/RESULTS.md).
 constexpr double kRglThetaMaxDeg = 87.5;
 
+// The incident azimuth slices over the whole circle of an anisotropic file
+// when none are given (convert, Python's write): the blend of neighbouring
+// slices at a fixed square coordinate is the anisotropic files' largest
+// error and falls as the square of their spacing, so at about the same size
+// 64 slices of smaller tables (vndf 48^2, values 40^2) beat 24 of 64^2
+// (bench/RESULTS.md).
+constexpr int kRglAnisotropicPhiI = 64;
+// The slices of that spacing (2 pi / 63, or closer) over the 2 pi /
+// symmetry a file holds: 64, 33 and 17 for symmetry 1, 2 and 4.
+int RglAnisotropicSlices(int symmetry);
+
 struct RglOptions {
   // Resolutions 0 are automatic (WithDefaults): isotropic files take the
   // resolution at which the reconstruction stays within 1 % (measured in
@@ -82,12 +93,12 @@ struct RglOptions {
   int symmetry = 1;
   int ndf = 512;             // ndf resolution (square)
   int sigma = 64;            // sigma resolution (square)
-  int vndf = 0;              // vndf rows per slice (azimuth of wm); 0: 256 isotropic, 64 anisotropic
-  int vndf_theta = 0;        // vndf columns per slice (elevation of wm); 0: as vndf if given, else 128 isotropic, 64 anisotropic
+  int vndf = 0;              // vndf rows per slice (azimuth of wm); 0: 256 isotropic, 48 anisotropic
+  int vndf_theta = 0;        // vndf columns per slice (elevation of wm); 0: as vndf if given, else 128 isotropic, 48 anisotropic
   // The value (rgb and luminance) tables are samples x samples per slice:
   // the format's readers (Mitsuba 3's measured plugin, the reference loader
   // powitacq, pbrt-v4) refuse tables that are not square.
-  int samples = 0;           // value table nodes per axis and slice; 0: 208 isotropic, 64 anisotropic
+  int samples = 0;           // value table nodes per axis and slice; 0: 208 isotropic, 40 anisotropic
   std::string description = "written by brdfkit";
 };
 

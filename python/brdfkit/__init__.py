@@ -400,7 +400,8 @@ def write(path, data, format=None, *, rgl=None, step_deg=5.0, phi_i=None, anisot
         the format of the suffix, which must agree with format.
     rgl : dict, optional
         RGL resolutions, the convert command's --rgl-* options: theta_i,
-        phi_i (0 isotropic; default 0, or 24 for an anisotropic model),
+        phi_i (0 isotropic; default 0, or for an anisotropic model 64, 33 or
+        17 with symmetry 1, 2 or 4),
         ndf, sigma, vndf, vndf_theta, samples (the value tables are samples x
         samples: the format's readers require square ones), symmetry (1; 2
         or 4 for the incident azimuths over pi or pi / 2 of an anisotropic
