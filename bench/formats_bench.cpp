@@ -1,12 +1,18 @@
 // Reading measured-data files and evaluating the models that read them,
-// with MERL as the baseline in the same run. The files are written once from
-// lambert+ggx into the temporary folder: MERL (34,992,012 bytes), RGL at the
-// writer's default resolution (isotropic and anisotropic), UTIA
-// (1,990,656 bytes) and an ASTM table on a 2.5 degree grid.
+// with MERL as the baseline in the same run. The files are written from
+// lambert+ggx by this process into a folder of its own under the temporary
+// folder (removed at exit, so that no run reads a file an older writer
+// made): MERL (34,992,012 bytes), RGL at the writer's default resolution
+// (isotropic and anisotropic), UTIA (1,990,656 bytes) and an ASTM table on a
+// 2.5 degree grid.
 #include <benchmark/benchmark.h>
 
 #include <filesystem>
 #include <random>
+#include <string>
+#include <system_error>
+
+#include <unistd.h>
 
 #include "brdf/astm.h"
 #include "brdf/merl.h"
@@ -19,8 +25,20 @@
 namespace brdfkit {
 namespace {
 
+// This process's folder of files, removed with them at exit.
+struct Folder {
+  std::filesystem::path path = std::filesystem::temp_directory_path() /
+                               ("brdfkit_formats_bench_" + std::to_string(::getpid()));
+  Folder() { std::filesystem::create_directories(path); }
+  ~Folder() {
+    std::error_code ignored;  // a folder left behind costs disk, not correctness
+    std::filesystem::remove_all(path, ignored);
+  }
+};
+
 std::string File(const std::string& name, formats::ConvertOptions o = {}) {
-  const std::string path = (std::filesystem::temp_directory_path() / ("brdfkit_formats_bench_" + name)).string();
+  static const Folder folder;
+  const std::string path = (folder.path / name).string();
   if (!std::filesystem::exists(path)) {
     const Model m = Model::Parse("lambert+ggx");
     const auto b = m.Make<double>();
