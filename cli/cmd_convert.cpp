@@ -27,8 +27,8 @@ void RegisterConvert(CLI::App& app) {
                   "--rgl-symmetry 2 and 4, the same spacing)");
   cmd->add_option("--rgl-symmetry", o.rgl.symmetry,
                   "RGL, anisotropic: 2 or 4 to store the incident azimuths over pi or pi / 2 of a source unchanged by a "
-                  "turn by pi (2) or by both mirrors x -> -x, y -> -y (4), slices that much denser; read by Mitsuba 3, "
-                  "refused by powitacq and pbrt-v4")
+                  "turn by pi (2) or by both mirrors x -> -x, y -> -y (4), by default in that many times fewer slices (the "
+                  "same spacing, a smaller file); read by Mitsuba 3, refused by powitacq and pbrt-v4")
       ->capture_default_str();
   cmd->add_option("--rgl-samples", o.rgl.samples,
                   "RGL: value table nodes per axis, per slice (square: the format's readers require it; default: 208 "
