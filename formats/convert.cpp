@@ -115,6 +115,12 @@ nlohmann::json ModelSource(const BrdfFunction& f, const std::string& spec, const
   return {{"model", spec}, {"params", params}, {"anisotropic", anisotropic}};
 }
 
+RglOptions RglTarget(const ConvertOptions& o) {
+  RglOptions r = o.rgl;
+  if (r.phi_i < 0) r.phi_i = o.anisotropic ? RglAnisotropicSlices(r.symmetry) : 0;
+  return WithDefaults(r);
+}
+
 nlohmann::json WriteFormat(const std::string& path, const BrdfFunction& f, const ConvertOptions& o) {
   const Format format = FormatOfName(path);
   nlohmann::json j;
@@ -136,9 +142,7 @@ nlohmann::json WriteFormat(const std::string& path, const BrdfFunction& f, const
       break;
     }
     case Format::kRgl: {
-      RglOptions r = o.rgl;
-      if (r.phi_i < 0) r.phi_i = o.anisotropic ? RglAnisotropicSlices(r.symmetry) : 0;
-      r = WithDefaults(r);
+      const RglOptions r = RglTarget(o);
       const TensorFile t = MakeRgl(f, r);
       const RglBsdf back = RglBsdf::FromTensors(t, "RGL file '" + path + "'");
       const RglAccuracy acc = MeasureRglAccuracy(back, f);

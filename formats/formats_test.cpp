@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <fstream>
 #include <random>
+#include <tuple>
 
 #include "brdf/astm.h"
 #include "brdf/merl.h"
@@ -541,6 +542,25 @@ TEST(Formats, UtiaAndAstmRoundTripsAgainstTheModel) {
     if (s.theta_i > 0 && s.theta_o > 0) {
       EXPECT_EQ(ab->Eval(nullptr, wi, wo)[0], s.f[0]);
     }
+  }
+}
+
+// An anisotropic source written without --rgl-phi-i takes
+// RglAnisotropicSlices: 64 slices over the circle, 33 and 17 over a half and
+// a quarter (the same spacing); an isotropic source one slice; a slice
+// count given stays.
+TEST(Formats, AnisotropicSourcesTakeTheDefaultSlices) {
+  for (const auto& [anisotropic, symmetry, slices] :
+       {std::tuple{true, 1, 64}, {true, 2, 33}, {true, 4, 17}, {false, 1, 0}}) {
+    SCOPED_TRACE(symmetry);
+    ConvertOptions o;
+    o.anisotropic = anisotropic;
+    o.rgl.symmetry = symmetry;
+    const RglOptions r = RglTarget(o);
+    EXPECT_EQ(r.phi_i, slices);
+    EXPECT_EQ(r.samples, anisotropic ? 40 : 208);
+    o.rgl.phi_i = 9;
+    EXPECT_EQ(RglTarget(o).phi_i, 9);
   }
 }
 

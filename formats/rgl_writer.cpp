@@ -201,6 +201,7 @@ bool InvariantUnder(const BrdfFunction& f, const std::function<Eigen::Vector3d(c
 }
 
 int RglAnisotropicSlices(int symmetry) {
+  // A symmetry below 1 counts as 1 here; MakeRgl refuses it with its message.
   const int k = std::max(symmetry, 1), intervals = kRglAnisotropicPhiI - 1;
   return 1 + (intervals + k - 1) / k;
 }
