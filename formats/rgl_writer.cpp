@@ -212,8 +212,8 @@ RglOptions WithDefaults(RglOptions o) {
   // follow the horizon's sweep in azimuth, slices its motion with theta_i,
   // 512 ndf nodes the steep tails of rough Beckmann lobes). Anisotropic
   // files store the vndf and values once per phi_i slice: 32 theta_i
-  // slices of a 48^2 vndf and 40^2 values, kRglAnisotropicPhiI slices of
-  // them when convert chooses.
+  // slices of a 48^2 vndf and 40^2 values, RglAnisotropicSlices of them
+  // when convert chooses.
   // vndf columns left automatic follow rows given explicitly (a square table).
   const bool iso = o.phi_i == 0;
   if (o.theta_i == 0) o.theta_i = iso ? 80 : 32;

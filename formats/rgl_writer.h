@@ -88,8 +88,10 @@ struct RglOptions {
   // last slice repeats the first); 2 or 4, those from -pi over pi or pi / 2
   // of a source unchanged by a turn by pi (2) or by both mirrors x -> -x
   // and y -> -y (4), which the format's readers fold queries into (Mitsuba
-  // 3 reads such files; powitacq and pbrt-v4 refuse them): the same slices
-  // 2 or 4 times as dense. MakeRgl checks the source's symmetry.
+  // 3 reads such files; powitacq and pbrt-v4 refuse them): a given phi_i
+  // then lies 2 or 4 times as dense, while convert's default
+  // (RglAnisotropicSlices) keeps the whole circle's spacing in fewer
+  // slices. MakeRgl checks the source's symmetry.
   int symmetry = 1;
   int ndf = 512;             // ndf resolution (square)
   int sigma = 64;            // sigma resolution (square)
