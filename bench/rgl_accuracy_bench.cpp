@@ -3,7 +3,7 @@
 // lobes: at the default resolution on the measure's grid (theta_i = 1.25 ..
 // 78.75 degrees), on the same grid extended towards grazing incidence
 // (to 83.75 and 86.25 degrees), and at half the default resolution on every
-// axis. Optional arguments: --samples N, --vndf N, --theta-i N (the
+// axis. Optional arguments: --samples N, --vndf N, --vndf-theta N, --theta-i N (the
 // resolution measured in place of the default; the half-resolution column
 // is then left out), then pairs of model and parameters to measure instead
 // of the list below.
@@ -30,8 +30,11 @@ int Run(int argc, char** argv) {
   int a = 1;
   for (; a + 1 < argc && std::string(argv[a]).rfind("--", 0) == 0; a += 2) {
     const std::string name = argv[a];
-    int& field = name == "--samples" ? full.samples : name == "--vndf" ? full.vndf : name == "--theta-i" ? full.theta_i
-                 : throw std::invalid_argument("unknown option " + name + " (--samples, --vndf, --theta-i)");
+    int& field = name == "--samples"      ? full.samples
+                 : name == "--vndf"       ? full.vndf
+                 : name == "--vndf-theta" ? full.vndf_theta
+                 : name == "--theta-i"    ? full.theta_i
+                 : throw std::invalid_argument("unknown option " + name + " (--samples, --vndf, --vndf-theta, --theta-i)");
     std::size_t used = 0;
     try {
       field = std::stoi(argv[a + 1], &used);
@@ -48,7 +51,7 @@ int Run(int argc, char** argv) {
   half.vndf = 128;
   half.vndf_theta = 64;
   half.samples = 104;
-  const bool given = full.samples != 0 || full.vndf != 0 || full.theta_i != 0;
+  const bool given = full.samples != 0 || full.vndf != 0 || full.vndf_theta != 0 || full.theta_i != 0;
   std::printf("| source | %s: mean / p99 / max | max to theta_i 83.75 | max to 86.25 |%s\n",
               given ? "given resolution" : "default", given ? "" : " half: p99 / max |");
   std::printf("|---|---|---|---|%s\n", given ? "" : "---|");
