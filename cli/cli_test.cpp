@@ -422,6 +422,38 @@ TEST(Cli, MeasuredTablesConserveEnergyForLightFromEveryDirection) {
               0.01 * b["albedo_at_normal"].get<double>());
 }
 
+// stress takes a measured table as every other command does (-m rgl:FILE)
+// and sweeps it exactly as with its option (--rgl FILE); a file that does
+// not open is named, exit 2.
+TEST(Cli, StressTakesMeasuredTablesByTheirModelText) {
+  const fs::path dir = FreshDir("stress-measured");
+  const std::string rgl = (dir / "ggx.bsdf").string(), utia = (dir / "lambert.utia").string();
+  ASSERT_EQ(Brdfkit("convert -m ggx -p alpha=0.3 --rgl-theta-i 6 --rgl-samples 16 --rgl-vndf 16 --rgl-ndf 32 "
+                    "--no-sidecar " + rgl).code, 0);
+  ASSERT_EQ(Brdfkit("convert -m lambert --no-sidecar " + utia).code, 0);
+  const CliRun by_text = Brdfkit("stress -m rgl:" + rgl + " -m utia:" + utia + " --sweep-only --json");
+  const CliRun by_option = Brdfkit("stress -m rgl -m utia --rgl " + rgl + " --utia " + utia + " --sweep-only --json");
+  ASSERT_EQ(by_text.code, 0) << by_text.out;
+  ASSERT_EQ(by_option.code, 0) << by_option.out;
+  const auto a = nlohmann::json::parse(by_text.out), b = nlohmann::json::parse(by_option.out);
+  ASSERT_EQ(a["models"].size(), 6u);  // two tables x float, double, Jet
+  for (std::size_t k = 0; k < a["models"].size(); ++k) {
+    const auto& row = a["models"][k];
+    EXPECT_EQ(row["model"], b["models"][k]["model"]);
+    EXPECT_EQ(row["evaluations"], b["models"][k]["evaluations"]);
+    EXPECT_EQ(row["reciprocity_max_rel_error"], b["models"][k]["reciprocity_max_rel_error"]);
+    if (row["type"] != "jet") {
+      EXPECT_GT(row["evaluations"].get<long long>(), 1000) << row.dump();
+    }
+  }
+  const CliRun missing = Brdfkit("stress -m rgl:" + (dir / "none.bsdf").string());
+  EXPECT_EQ(missing.code, 2);
+  EXPECT_NE(missing.out.find("none.bsdf"), std::string::npos) << missing.out;
+  const CliRun no_file = Brdfkit("stress -m ggx:" + rgl);
+  EXPECT_EQ(no_file.code, 2);
+  EXPECT_NE(no_file.out.find("model 'ggx' takes no ':' argument"), std::string::npos) << no_file.out;
+}
+
 // Scene messages: a misspelt top-level key is named as such (with the
 // nearest known key), and a relative path is shown as resolved.
 TEST(Cli, SceneMessagesNameTheKeyAndTheResolvedPath) {

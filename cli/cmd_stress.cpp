@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdio>
 #include <iostream>
+#include <optional>
 #include <sstream>
 
 #include "brdf/atomic_file.h"
@@ -139,18 +140,31 @@ struct StressRun {
 
 StressRun RunAll(const std::vector<std::string>& models, const MeasuredFiles& files, bool sweep_only) {
   validate::StressOptions so;
-  for (const std::string& m : models) {
-    bool known = false;
-    for (const ModelInfo& i : RegisteredModelInfos()) known = known || i.name == m;
-    if (!known)
+  // Measured tables by their file, from the options (--rgl FILE) and from
+  // the model text (rgl:FILE, as every other command takes it).
+  MeasuredFiles tables = files;
+  for (const std::string& spec : models) {
+    const std::size_t colon = spec.find(':');
+    const std::string m = spec.substr(0, colon);
+    std::optional<ModelInfo> info;
+    for (const ModelInfo& i : RegisteredModelInfos())
+      if (i.name == m) info = i;
+    if (!info)
       throw UsageError("stress: unknown model '" + m + "' (known models: " + Model::KnownNames() + ")" +
                        DidYouMean(m, Model::KnownModelNames()));
+    if (colon != std::string::npos) {
+      if (info->settings.empty()) throw UsageError("stress: model '" + m + "' takes no ':' argument (got '" + spec + "')");
+      tables.push_back({m, spec.substr(colon + 1)});
+    }
     so.models.push_back(m);
   }
-  for (const auto& [name, file] : files)
+  for (const auto& [name, file] : tables)
     if (!file.empty()) {
-      (void)Model::Parse(name, Settings{{"path", file}});  // a bad file is named here, before the sweep
-      so.settings.push_back({name, Settings{{"path", file}}});
+      Settings settings;
+      for (const ModelInfo& i : RegisteredModelInfos())
+        if (i.name == name) settings[i.settings.front()] = file;  // the file's setting, as in "name:FILE"
+      (void)Model::Parse(name, settings);  // a bad file is named here, before the sweep
+      so.settings.push_back({name, settings});
     }
   const auto t0 = std::chrono::steady_clock::now();
   StressRun run;
@@ -214,7 +228,9 @@ void RegisterStress(CLI::App& app) {
   static std::vector<std::string> models;
   static std::string merl, output;
   static bool json = false, sweep_only = false;
-  cmd->add_option("--model,-m", models, "registered model name (repeat for several); default: every model");
+  cmd->add_option("--model,-m", models,
+                  "registered model name (repeat for several), a measured table with its file (merl:FILE, rgl:FILE, "
+                  "utia:FILE, astm:FILE); default: every model");
   cmd->add_option("--merl", merl, "a MERL .binary file to sweep the merl model over (otherwise it is skipped)");
   static std::string rgl, utia, astm;
   cmd->add_option("--rgl", rgl, "an RGL .bsdf file for the rgl model (otherwise it is skipped)");

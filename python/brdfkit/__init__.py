@@ -210,7 +210,8 @@ def fit(model, data, wo=None, f=None, sigma=None, *, init=None, metric="l2", los
         PythonModel (its parameter table gives the bounds, the log-scale
         parameters the multi-start; derivatives by central differences).
     data : str, os.PathLike or array_like
-        A CSV table or MERL file, or the array wi (N, 3) with ``wo`` and ``f``.
+        A CSV table, or a MERL, RGL, UTIA or ASTM file (samples at the file's
+        own nodes), or the array wi (N, 3) with ``wo`` and ``f``.
     wo, f, sigma : array_like, shape (N, 3), optional
         With array data: directions towards the detector, f_r in 1/sr and
         optionally its standard deviation (weights 1/sigma).
@@ -297,7 +298,8 @@ def stress(models=(), *, merl=None, sweep_only=False):
     Parameters
     ----------
     models : sequence of str
-        Registered model names (default every model).
+        Registered model names (default every model); a measured table
+        with its file as ``"rgl:FILE"`` (likewise merl, utia, astm).
     merl : str, optional
         A MERL file for the merl model (otherwise it is skipped).
     sweep_only : bool

@@ -244,6 +244,20 @@ def test_stress_equals_cli():
         brdfkit.stress(["nosuch"])
 
 
+def test_stress_takes_a_measured_table_by_its_model_text(tmp_path):
+    # A table written from lambert: swept through "utia:FILE" exactly as the
+    # command line sweeps it; a missing file is named.
+    path = str(tmp_path / "l.utia")
+    brdfkit.write(path, brdfkit.Model("lambert"))
+    py = brdfkit.stress(["utia:" + path], sweep_only=True)
+    ref = cli_json("stress", "-m", "utia:" + path, "--sweep-only", "--json")
+    assert without_times(py) == without_times(ref)
+    assert [r["type"] for r in py["models"]] == ["float", "double", "jet"]
+    assert py["models"][1]["evaluations"] > 1000 and py["clean"]
+    with pytest.raises(ValueError, match="none.utia"):
+        brdfkit.stress(["utia:" + str(tmp_path / "none.utia")])
+
+
 def test_ctrl_c_interrupts_a_long_call():
     # interrupt_main() delivers a simulated SIGINT to the main thread while
     # the table is being built (several seconds of work uninterrupted).
