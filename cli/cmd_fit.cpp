@@ -212,7 +212,8 @@ LoadedModel LoadFitModel(const std::string& path) {
 }
 
 void RegisterFit(CLI::App& app) {
-  auto* cmd = app.add_subcommand("fit", "fit a model to tabulated reflectance (CSV table, MERL, RGL, UTIA or ASTM file) with Ceres");
+  auto* cmd =
+      app.add_subcommand("fit", "fit a model to tabulated reflectance (CSV table, MERL, RGL, UTIA or ASTM file) with Ceres");
   static std::string data, model, init, metric = "l2", loss = "none", solver = "dense_qr", instrument, out, trace,
                      trace_plot;
   static std::vector<std::string> fix, tie, bounds;
@@ -220,7 +221,9 @@ void RegisterFit(CLI::App& app) {
   static int threads = 0, max_iter = 200, starts = 5, aperture_order = 0, random_starts = 0;
   static std::uint64_t seed = 1;
   static bool json = false, no_cov = false, ignore_sigma = false;
-  cmd->add_option("--data,-d", data, "CSV table (theta_i,phi_i,theta_o,phi_o,f_r,f_g,f_b[,sigma_*]), MERL .binary, RGL .bsdf, UTIA .utia/.bin or ASTM .astm (samples at the file's own nodes)")
+  cmd->add_option("--data,-d", data,
+                  "CSV table (theta_i,phi_i,theta_o,phi_o,f_r,f_g,f_b[,sigma_*]), MERL .binary, RGL .bsdf, UTIA "
+                  ".utia/.bin or ASTM .astm (samples at the file's own nodes)")
       ->required();
   cmd->add_option("--model,-m", model, "model or sum of lobes (lambert+ggx), or fit:FILE to refine a previous fit")
       ->required();

@@ -153,7 +153,8 @@ StressRun RunAll(const std::vector<std::string>& models, const MeasuredFiles& fi
       throw UsageError("stress: unknown model '" + m + "' (known models: " + Model::KnownNames() + ")" +
                        DidYouMean(m, Model::KnownModelNames()));
     if (colon != std::string::npos) {
-      if (info->settings.empty()) throw UsageError("stress: model '" + m + "' takes no ':' argument (got '" + spec + "')");
+      if (info->settings.empty())
+        throw UsageError("stress: model '" + m + "' takes no ':' argument (got '" + spec + "')");
       tables.push_back({m, spec.substr(colon + 1)});
     }
     so.models.push_back(m);

@@ -10,7 +10,7 @@ void RegisterView(CLI::App& app) {
   static std::string out = "explorer.html", title;
   cmd->add_option("materials", materials,
                   "MODEL or MODEL:PARAMS, e.g. ggx:alpha=0.2, lambert+ggx:lambert.albedo=0.1:0.2:0.5,ggx.alpha=0.1, "
-                  "merl:FILE, fit:FILE.json; several are overlaid")
+                  "a measured table (merl:FILE, rgl:FILE, utia:FILE, astm:FILE), fit:FILE.json; several are overlaid")
       ->required();
   cmd->add_option("--out,-o", out, "the HTML file to write")->capture_default_str();
   cmd->add_option("--title", title, "page title (default: the materials)");

@@ -23,7 +23,8 @@ int ThreadCount(int requested) {
 
 void AddModelOptions(CLI::App* cmd, ModelArgs& args, bool required) {
   auto* opt = cmd->add_option("--model,-m", args.model,
-                              "model name or sum of lobes, e.g. ggx, lambert+ggx, merl:FILE (see 'brdfkit models')");
+                              "model name or sum of lobes, e.g. ggx, lambert+ggx, or a measured table (merl:FILE, "
+                              "rgl:FILE, utia:FILE, astm:FILE; see 'brdfkit models')");
   if (required) opt->required();
   cmd->add_option("--params,-p", args.params,
                   "parameters name=value,...; a colour parameter takes one value or r:g:b; "
