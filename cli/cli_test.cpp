@@ -420,6 +420,67 @@ TEST(Cli, MeasuredTablesConserveEnergyForLightFromEveryDirection) {
   EXPECT_EQ(std::string(rgl.out).find("energy:"), std::string::npos) << rgl.out;
   EXPECT_NEAR(a["albedo_at_normal"].get<double>(), b["albedo_at_normal"].get<double>(),
               0.01 * b["albedo_at_normal"].get<double>());
+  // albedo tabulates the file over mu alone: GGX's E(mu) and E_avg to the
+  // reconstruction's accuracy wherever the light meets a slice (at mu = 0
+  // the last slice, 87.5 degrees, holds: 0.951 against GGX's 1), at a
+  // tolerance the table's interpolation lets the integrals reach.
+  const CliRun e_rgl = Brdfkit("albedo -m rgl:" + file + " --axes mu:5 --tolerance 1e-3 --json");
+  const CliRun e_ggx = Brdfkit("albedo -m ggx -p alpha=0.3 --axes mu:5 --json");
+  ASSERT_EQ(e_rgl.code, 0) << e_rgl.out;
+  ASSERT_EQ(e_ggx.code, 0) << e_ggx.out;
+  // The JSON line (the summary goes to stderr, which the run merges).
+  const auto json_line = [](const std::string& out) {
+    const std::size_t at = out.find('{');
+    return nlohmann::json::parse(out.substr(at, out.find('\n', at) - at));
+  };
+  const auto er = json_line(e_rgl.out), eg = json_line(e_ggx.out);
+  EXPECT_TRUE(er["axes"].empty());
+  for (std::size_t m = 1; m < 5; ++m)
+    EXPECT_NEAR(er["E"][m].get<double>(), eg["E"][m].get<double>(), 5e-4) << "mu " << er["mu"][m];
+  EXPECT_NEAR(er["E"][0].get<double>(), 0.951, 0.002);
+  EXPECT_NEAR(er["E_avg"][0].get<double>(), eg["E_avg"][0].get<double>(), 5e-4);
+}
+
+// albedo over mu alone: a lambert table read back through UTIA is its
+// albedo at the tables' own tolerance (bilinear cells of a constant), and
+// the header of such a table (E over mu, one E_avg) compiles as C89 and
+// C++ and holds the CSV's values.
+TEST(Cli, AlbedoOverMuAloneOfATableAndItsHeader) {
+  const fs::path dir = FreshDir("albedo-mu-alone");
+  const std::string utia = (dir / "l.utia").string(), stem = (dir / "l").string();
+  ASSERT_EQ(Brdfkit("convert -m lambert -p albedo=0.4 --no-sidecar " + utia).code, 0);
+  const CliRun r = Brdfkit("albedo -m utia:" + utia + " --axes mu:6 --csv " + stem + ".csv --header " + stem +
+                           ".h --header-prefix tab");
+  ASSERT_EQ(r.code, 0) << r.out;
+  std::istringstream csv(ReadText(stem + ".csv"));
+  std::string line, expected;
+  std::getline(csv, line);
+  EXPECT_EQ(line, "mu,E");
+  while (std::getline(csv, line)) {
+    EXPECT_NEAR(std::stod(line.substr(line.find(',') + 1)), 0.4, 1e-6) << line;
+    expected += line.substr(line.find(',') + 1) + "\n";
+  }
+  const std::string prog = "#include <math.h>\n#include <stdio.h>\n#include \"" + stem +
+                           ".h\"\nint main(void) {\n  int m, bad = 0;\n"
+                           "  for (m = 0; m < tab_n_mu; ++m) {\n    printf(\"%.9g\\n\", (double)tab_E[m]);\n"
+                           "    if (tab_E_lookup(tab_mu_nodes[m]) != tab_E[m]) ++bad;\n  }\n"
+                           "  if (fabs(tab_E_avg[0] - 0.4) > 1e-6 || fabs(tab_ms_norm[0] * 3.14159265 * 0.6 - 1) > 1e-5) ++bad;\n"
+                           "  return bad;\n}\n";
+  WriteText(stem + "_main.c", prog);
+  WriteText(stem + "_main.cpp", prog);
+  for (const std::string compiler : {"gcc -x c -std=c89", "g++ -x c++ -std=c++11"}) {
+    const bool cpp = compiler.find("++") != std::string::npos;
+    const CliRun c = Shell(compiler + " -Wall -Wextra -Werror -pedantic " + stem + (cpp ? "_main.cpp" : "_main.c") +
+                           " -o " + stem + "_prog -lm");
+    ASSERT_EQ(c.code, 0) << compiler << ":\n" << c.out;
+    const CliRun out = Shell(stem + "_prog");
+    ASSERT_EQ(out.code, 0) << compiler << ": lookups or averages that failed\n" << out.out;
+    std::istringstream got(out.out), want(expected);
+    for (std::string g, w; std::getline(want, w);) {
+      ASSERT_TRUE(std::getline(got, g));
+      EXPECT_NEAR(std::stod(g), std::stod(w), 1e-7);
+    }
+  }
 }
 
 // stress takes a measured table as every other command does (-m rgl:FILE)

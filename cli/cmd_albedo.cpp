@@ -1,6 +1,7 @@
 #include <algorithm>
 #include <cctype>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <iostream>
 
@@ -54,11 +55,13 @@ void RegisterAlbedo(CLI::App& app) {
   static double tolerance = validate::AlbedoQuadratureOptions{}.abs_tolerance, accept_error = 0;
   static std::string slice;
   static int channel = 0, threads = 0;
+  static std::int64_t budget = validate::AlbedoQuadratureOptions{}.max_evals;
   static bool json = false;
   AddModelOptions(cmd, margs, false);
   cmd->add_option("--axes", axes,
-                  "mu:N then one or two parameters, name:count[:lower:upper], e.g. mu:32,alpha:32 or "
-                  "mu:32,alpha:32,f0:8 (default range: the parameter's bounds)");
+                  "mu:N then up to two parameters, name:count[:lower:upper], e.g. mu:32,alpha:32 or "
+                  "mu:32,alpha:32,f0:8 (default range: the parameter's bounds); mu:N alone tabulates E(mu) of the "
+                  "model as given (a measured table: rgl:FILE)");
   cmd->add_option("--preset", preset,
                   "instead of --model and --axes: every table a renderer ships, on its nodes and in its layout: "
                   "cycles (Blender Cycles' shader.tables: GGX, glass and generalised-Schlick tables), filament "
@@ -94,6 +97,11 @@ void RegisterAlbedo(CLI::App& app) {
                   "accept entries whose error estimate is up to this (default: the tolerance). A table with an "
                   "entry above it is not written: the entries are listed and the exit code is 1")
       ->check(CLI::Range(1e-12, 1e3));
+  cmd->add_option("--albedo-budget", budget,
+                  "evaluations per directional albedo after which the adaptive rule stops refining (an entry "
+                  "that has not reached the tolerance by then is reported)")
+      ->capture_default_str()
+      ->check(CLI::Range(std::int64_t{1000}, std::int64_t{1000000000}));
   cmd->add_option("--channel", channel, "RGB channel tabulated (0, 1, 2)")->check(CLI::Range(0, 2));
   cmd->add_option("--slice", slice,
                   "BEGIN:END: only nodes BEGIN..END-1 of the first parameter axis, with the full axis's node values "
@@ -135,6 +143,7 @@ void RegisterAlbedo(CLI::App& app) {
     req.axes = validate::ParseAxes(axes);
     req.rule = nodes == "gauss" ? validate::NodeRule::kGauss : validate::NodeRule::kUniform;
     req.quadrature.abs_tolerance = tolerance;
+    req.quadrature.max_evals = budget;
     req.quadrature.part = validate::ParsePart(part);
     req.channel = channel;
     if (!slice.empty()) {
@@ -154,8 +163,8 @@ void RegisterAlbedo(CLI::App& app) {
     const std::vector<validate::AlbedoMiss> misses = validate::EntriesAboveTolerance(t, accepted);
     if (!misses.empty())
       throw ResultError(validate::DescribeMisses(misses, accepted) +
-                        "\nNo table was written. Narrow the parameter range (an alpha axis such as "
-                        "alpha:32:0.001:1), or accept a looser table with --accept-error.");
+                        "\nNo table was written. " + validate::MissAdvice(t) +
+                        ", or accept a looser table with --accept-error.");
     if (!csv.empty()) validate::WriteAlbedoCsv(t, csv);
     if (!exr.empty()) validate::WriteAlbedoExr(t, exr);
     if (!header.empty()) {
@@ -170,15 +179,16 @@ void RegisterAlbedo(CLI::App& app) {
       const nlohmann::json j = AlbedoTableJson(t);
       std::cout << j.dump() << "\n";
     } else if (csv.empty() && exr.empty() && header.empty()) {
-      std::string names = t.params[0].name;
-      if (t.params.size() > 1) names.append(",").append(t.params[1].name);
-      std::printf("mu,%s,E\n", names.c_str());
+      std::printf("mu,");
+      for (const validate::Axis& a : t.params) std::printf("%s,", a.name.c_str());
+      std::printf("E\n");
       for (std::size_t i1 = 0; i1 < t.n1(); ++i1)
         for (std::size_t i2 = 0; i2 < t.n2(); ++i2)
           for (std::size_t k = 0; k < t.n_mu(); ++k) {
-            std::printf("%s,%s", FormatDouble(t.mu.nodes[k]).c_str(), FormatDouble(t.params[0].nodes[i1]).c_str());
-            if (t.params.size() > 1) std::printf(",%s", FormatDouble(t.params[1].nodes[i2]).c_str());
-            std::printf(",%s\n", FormatDouble(t.at(k, i1, i2)).c_str());
+            std::printf("%s,", FormatDouble(t.mu.nodes[k]).c_str());
+            if (!t.params.empty()) std::printf("%s,", FormatDouble(t.params[0].nodes[i1]).c_str());
+            if (t.params.size() > 1) std::printf("%s,", FormatDouble(t.params[1].nodes[i2]).c_str());
+            std::printf("%s\n", FormatDouble(t.at(k, i1, i2)).c_str());
           }
     }
     std::fprintf(stderr, "albedo: %zu entries and %zu averages in %.2f s; largest error estimate %.2g, grazing limit %.2g\n",

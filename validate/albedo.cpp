@@ -269,9 +269,11 @@ AlbedoTable BuildAlbedoTable(const Bxdf<double>& model, const std::string& spec,
   const auto t_start = std::chrono::steady_clock::now();
   const ModelInfo& info = model.Info();
   ValidateParams(info, base_params);
-  if (req.axes.size() < 2 || req.axes.size() > 3 || req.axes[0].name != "mu")
-    throw ModelError("axes: expected mu:N followed by one or two model parameters (e.g. mu:32,alpha:32)");
+  if (req.axes.empty() || req.axes.size() > 3 || req.axes[0].name != "mu")
+    throw ModelError("axes: expected mu:N followed by up to two model parameters (e.g. mu:32,alpha:32)");
   if (req.channel < 0 || req.channel > 2) throw ModelError("channel must be 0, 1 or 2");
+  if (req.axes.size() == 1 && (req.slice_begin != 0 || req.slice_end != static_cast<std::size_t>(-1)))
+    throw ModelError("slice: a slice is taken along the first parameter axis, and the axes name none (mu only)");
   AlbedoTable t;
   t.model = spec;
   t.base_params = base_params;
@@ -356,7 +358,7 @@ AlbedoTable BuildAlbedoTable(const Bxdf<double>& model, const std::string& spec,
   for (std::size_t i1 = 0; i1 < n1; ++i1)
     for (std::size_t i2 = 0; i2 < n2; ++i2) {
       auto& pp = point_params[i1 * n2 + i2];
-      SetParam(info, t.params[0], t.params[0].nodes[i1], pp);
+      if (!t.params.empty()) SetParam(info, t.params[0], t.params[0].nodes[i1], pp);
       if (t.params.size() > 1) SetParam(info, t.params[1], t.params[1].nodes[i2], pp);
     }
   // F = 1 points for the Fresnel compensation terms (f0 axis set to 1).
@@ -455,7 +457,8 @@ std::vector<AlbedoMiss> EntriesAboveTolerance(const AlbedoTable& t, double toler
   const std::size_t n2 = t.n2();
   // Axis values of parameter point i1 * n2 + i2.
   const auto point = [&](std::size_t k) {
-    std::vector<std::pair<std::string, double>> v{{t.params[0].name, t.params[0].nodes[k / n2]}};
+    std::vector<std::pair<std::string, double>> v;
+    if (!t.params.empty()) v.emplace_back(t.params[0].name, t.params[0].nodes[k / n2]);
     if (t.params.size() > 1) v.emplace_back(t.params[1].name, t.params[1].nodes[k % n2]);
     return v;
   };
@@ -492,14 +495,22 @@ std::string DescribeMisses(const std::vector<AlbedoMiss>& misses, double toleran
     const AlbedoMiss& m = *worst[i];
     char err[32];
     std::snprintf(err, sizeof err, "%.3g", m.error);
-    s << "\n  " << m.table << " at ";
-    if (m.mu >= 0) s << "mu = " << FormatDouble(m.mu) << ", ";
-    for (std::size_t k = 0; k < m.at.size(); ++k)
-      s << (k ? ", " : "") << m.at[k].first << " = " << FormatDouble(m.at[k].second);
+    std::vector<std::string> where;
+    if (m.mu >= 0) where.push_back("mu = " + FormatDouble(m.mu));
+    for (const auto& [name, value] : m.at) where.push_back(name + " = " + FormatDouble(value));
+    s << "\n  " << m.table;
+    for (std::size_t k = 0; k < where.size(); ++k) s << (k ? ", " : " at ") << where[k];
     s << ": error estimate " << err;
   }
   if (worst.size() > shown) s << "\n  ... and " << worst.size() - shown << " more";
   return s.str();
+}
+
+std::string MissAdvice(const AlbedoTable& table) {
+  return table.params.empty()
+             ? "Ask for a looser tolerance (a measured table's interpolation keeps its integrals from converging "
+               "much below 1e-4: --tolerance 1e-3)"
+             : "Narrow the parameter range (an alpha axis such as alpha:32:0.001:1)";
 }
 
 // --- writers ---------------------------------------------------------------
@@ -527,21 +538,23 @@ std::string AverageCsvPath(const std::string& path) { return SiblingPath(path, "
 void WriteAlbedoCsv(const AlbedoTable& t, const std::string& path) {
   const std::size_t n1 = t.n1(), n2 = t.n2();
   const bool two = t.params.size() > 1;
-  std::string pnames = t.params[0].name;
-  if (two) pnames.append(",").append(t.params[1].name);
+  // The parameter columns, each followed by its comma (none without parameter axes).
+  std::string pnames;
+  for (const Axis& a : t.params) pnames.append(a.name).append(",");
   std::ostringstream e, avg, ms;
-  e << "mu," << pnames << ",E\n";
-  avg << pnames << ",E_avg\n";
-  ms << pnames << ",E_avg,ms_norm" << (t.f0_axis >= 0 ? ",F_avg,E1_avg,F_ms" : "") << "\n";
+  e << "mu," << pnames << "E\n";
+  avg << pnames << "E_avg\n";
+  ms << pnames << "E_avg,ms_norm" << (t.f0_axis >= 0 ? ",F_avg,E1_avg,F_ms" : "") << "\n";
   const std::size_t n_other = t.f0_axis >= 0 ? t.E1_avg.size() : 0;
   for (std::size_t i1 = 0; i1 < n1; ++i1)
     for (std::size_t i2 = 0; i2 < n2; ++i2) {
-      std::string pv = Fmt(t.params[0].nodes[i1]);
-      if (two) pv.append(",").append(Fmt(t.params[1].nodes[i2]));
-      for (std::size_t m = 0; m < t.n_mu(); ++m) e << Fmt(t.mu.nodes[m]) << "," << pv << "," << Fmt(t.at(m, i1, i2)) << "\n";
+      std::string pv;
+      if (!t.params.empty()) pv.append(Fmt(t.params[0].nodes[i1])).append(",");
+      if (two) pv.append(Fmt(t.params[1].nodes[i2])).append(",");
+      for (std::size_t m = 0; m < t.n_mu(); ++m) e << Fmt(t.mu.nodes[m]) << "," << pv << Fmt(t.at(m, i1, i2)) << "\n";
       const std::size_t k = i1 * n2 + i2;
-      avg << pv << "," << Fmt(t.E_avg[k]) << "\n";
-      ms << pv << "," << Fmt(t.E_avg[k]) << "," << Fmt(t.ms_norm[k]);
+      avg << pv << Fmt(t.E_avg[k]) << "\n";
+      ms << pv << Fmt(t.E_avg[k]) << "," << Fmt(t.ms_norm[k]);
       if (t.f0_axis >= 0) {
         const std::size_t i_f0 = t.f0_axis == 0 ? i1 : i2, i_other = two ? (t.f0_axis == 0 ? i2 : i1) : 0;
         ms << "," << Fmt(t.F_avg[i_f0]) << "," << Fmt(t.E1_avg[i_other]) << "," << Fmt(t.F_ms[k]);
@@ -677,11 +690,12 @@ void WriteAlbedoHeader(const AlbedoTable& t, const std::string& path, const std:
     block(0, 0);
     s << ";\n\n";
   };
-  const bool two = t.params.size() > 1;
-  std::vector<std::size_t> dims_p = {t.n1()};
-  if (two) dims_p.push_back(t.n2());
+  // Without parameter axes E runs over mu alone and each average is one value.
+  std::vector<std::size_t> dims_p;
+  for (const Axis& a : t.params) dims_p.push_back(a.nodes.size());
   std::vector<std::size_t> dims_e = dims_p;
   dims_e.push_back(t.n_mu());
+  if (dims_p.empty()) dims_p = {1};
   const std::string guard = upper + "_H";
   s << "/* Directional albedo tables generated by brdfkit albedo.\n"
     << " * model: " << t.model << "\n"
@@ -702,7 +716,9 @@ void WriteAlbedoHeader(const AlbedoTable& t, const std::string& path, const std:
   for (const Axis& a : t.params)
     array(a.name + "_nodes", a.nodes, {a.nodes.size()},
           a.name + " node values" + (a.sqrt_spacing ? " (spaced in sqrt(" + a.name + "))" : ""));
-  array("E", t.E, dims_e, "E[" + t.params[0].name + "]" + (two ? "[" + t.params[1].name + "]" : "") + "[mu]");
+  std::string e_index;
+  for (const Axis& a : t.params) e_index += "[" + a.name + "]";
+  array("E", t.E, dims_e, "E" + e_index + "[mu]");
   array("E_avg", t.E_avg, dims_p, "E_avg = 2 int_0^1 E(mu) mu dmu");
   array("ms_norm", t.ms_norm, dims_p, "1 / (pi (1 - E_avg)); 0 where E_avg >= 1");
   if (t.f0_axis >= 0) {
@@ -770,8 +786,11 @@ void WriteAlbedoHeader(const AlbedoTable& t, const std::string& path, const std:
   std::vector<LookupAxis> e_dims = param_axes;
   e_dims.push_back(mu_axis);
   lookup("E", e_dims, "E at (mu, parameters)");
-  lookup("E_avg", param_axes, "E_avg at the parameters");
-  lookup("ms_norm", param_axes, "ms_norm at the parameters");
+  // Without parameter axes E_avg and ms_norm are single values: no lookup.
+  if (!param_axes.empty()) {
+    lookup("E_avg", param_axes, "E_avg at the parameters");
+    lookup("ms_norm", param_axes, "ms_norm at the parameters");
+  }
   if (t.f0_axis >= 0) lookup("F_ms", param_axes, "F_ms at the parameters");
   s << "#undef " << upper << "_UNUSED\n\n#endif /* " << guard << " */\n";
   WriteFileAtomic(path, s.str());

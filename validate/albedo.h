@@ -128,7 +128,7 @@ std::vector<std::string> PartNames();
 std::vector<AxisSpec> ParseAxes(const std::string& text);
 
 struct AlbedoTableRequest {
-  std::vector<AxisSpec> axes;  // first "mu", then one or two parameters
+  std::vector<AxisSpec> axes;  // first "mu", then up to two parameters (none: E(mu) of the model as given)
   NodeRule rule = NodeRule::kUniform;
   AlbedoQuadratureOptions quadrature;
   int channel = 0;  // RGB channel tabulated (the models' grey parameters make all three equal)
@@ -150,7 +150,7 @@ struct AlbedoTable {
   // (AlbedoQuadratureOptions::part); empty for other models (E).
   std::string part;
   Axis mu;
-  std::vector<Axis> params;  // one or two
+  std::vector<Axis> params;  // none, one or two
   // E[(i1 * n2 + i2) * n_mu + i_mu], n2 = 1 when there is one parameter axis
   // (the layout of the EXR image and the C arrays: mu runs fastest).
   std::vector<double> E, E_error;
@@ -171,7 +171,7 @@ struct AlbedoTable {
   double seconds = 0;
 
   std::size_t n_mu() const { return mu.nodes.size(); }
-  std::size_t n1() const { return params[0].nodes.size(); }
+  std::size_t n1() const { return params.empty() ? 1 : params[0].nodes.size(); }
   std::size_t n2() const { return params.size() > 1 ? params[1].nodes.size() : 1; }
   std::size_t Index(std::size_t i_mu, std::size_t i1, std::size_t i2 = 0) const {
     return (i1 * n2() + i2) * n_mu() + i_mu;
@@ -201,6 +201,9 @@ struct AlbedoMiss {
 std::vector<AlbedoMiss> EntriesAboveTolerance(const AlbedoTable& table, double tolerance);
 // "N table entries miss the error tolerance T:" and the `shown` worst, one a line.
 std::string DescribeMisses(const std::vector<AlbedoMiss>& misses, double tolerance, std::size_t shown = 8);
+// What to change when entries miss: the parameter range, or (a table without
+// parameter axes, such as a measured table's) the tolerance.
+std::string MissAdvice(const AlbedoTable& table);
 
 // Writers (atomic: a failure leaves no file behind).
 // CSV: "mu,<p1>[,<p2>],E" and beside it <stem>_avg.csv "<p1>[,<p2>],E_avg".

@@ -335,6 +335,70 @@ TEST(EnergyCompensation, WhiteFurnaceWithCompensationLobe) {
   }
 }
 
+// mu:N alone tabulates E(mu) of the model as given: lambert's is its
+// albedo, and GGX's is the row of a table with an alpha axis through the
+// same alpha (ends included), entry for entry.
+TEST(AlbedoTable, MuAloneTabulatesTheModelAsGiven) {
+  const AlbedoTable l = Table("lambert", "albedo=0.3", "mu:5");
+  EXPECT_TRUE(l.params.empty());
+  ASSERT_EQ(l.E.size(), 5u);
+  ASSERT_EQ(l.E_avg.size(), 1u);
+  for (double e : l.E) EXPECT_NEAR(e, 0.3, 1e-9);
+  EXPECT_NEAR(l.E_avg[0], 0.3, 1e-9);
+  EXPECT_NEAR(l.ms_norm[0], 1 / (kPi * 0.7), 1e-8);
+  EXPECT_EQ(l.params_text, "albedo=0.3:0.3:0.3");  // every parameter is held fixed
+  const AlbedoTable g = Table("ggx", "alpha=0.3,f0=1", "mu:6");
+  const AlbedoTable row = Table("ggx", "f0=1", "mu:6,alpha:2:0.3:0.5");
+  ASSERT_EQ(row.params[0].nodes[0], 0.3);
+  for (std::size_t m = 0; m < 6; ++m) EXPECT_NEAR(g.E[m], row.at(m, 0), 1e-12) << m;
+  EXPECT_NEAR(g.E_avg[0], row.E_avg[0], 1e-12);
+  EXPECT_LT(g.max_error, 1e-6);
+  // A slice is taken along a parameter axis: none here.
+  const Model m = Model::Parse("ggx");
+  AlbedoTableRequest req;
+  req.axes = ParseAxes("mu:4");
+  req.slice_begin = 0;
+  req.slice_end = 2;
+  EXPECT_THROW(BuildAlbedoTable(m, m.Info().Defaults(), req), ModelError);
+  // What to change when entries miss: the tolerance without parameter axes.
+  EXPECT_NE(MissAdvice(g).find("--tolerance 1e-3"), std::string::npos);
+  EXPECT_NE(MissAdvice(row).find("Narrow the parameter range"), std::string::npos);
+  EXPECT_EQ(DescribeMisses({{"E_avg", -1, {}, 0.5}, {"E", 0.25, {}, 0.25}}, 1e-6),
+            "2 table entries miss the error tolerance 1e-06:\n  E_avg: error estimate 0.5\n  E at mu = 0.25: error "
+            "estimate 0.25");
+}
+
+// Without parameter axes the files carry mu and the values alone.
+TEST(AlbedoOutput, MuAloneWritesMuAndTheValues) {
+  const AlbedoTable t = Table("lambert", "albedo=0.5", "mu:3");
+  const auto dir = TempDir("mu_alone");
+  WriteAlbedoCsv(t, (dir / "l.csv").string());
+  const auto rows = [&](const std::string& name) {
+    std::ifstream in(dir / name);
+    std::vector<std::string> out;
+    for (std::string line; std::getline(in, line);) out.push_back(line);
+    return out;
+  };
+  const std::vector<std::string> e = rows("l.csv"), avg = rows("l_avg.csv"), ms = rows("l_ms.csv");
+  ASSERT_EQ(e.size(), 4u);
+  EXPECT_EQ(e[0], "mu,E");
+  for (std::size_t m = 0; m < 3; ++m) {
+    const std::string& line = e[m + 1];
+    double mu = -1, value = -1;
+    ASSERT_TRUE(ParseDouble(line.substr(0, line.find(',')), mu) && ParseDouble(line.substr(line.find(',') + 1), value))
+        << line;
+    EXPECT_EQ(mu, 0.5 * double(m));
+    EXPECT_NEAR(value, 0.5, 1e-9);
+  }
+  ASSERT_EQ(avg.size(), 2u);
+  EXPECT_EQ(avg[0], "E_avg");
+  double e_avg = -1;
+  ASSERT_TRUE(ParseDouble(avg[1], e_avg)) << avg[1];
+  EXPECT_NEAR(e_avg, 0.5, 1e-9);
+  ASSERT_EQ(ms.size(), 2u);
+  EXPECT_EQ(ms[0], "E_avg,ms_norm");
+}
+
 TEST(AlbedoOutput, CsvHasHeaderRowsAndAverageFile) {
   const AlbedoTable t = Table("ggx", "f0=1", "mu:3,alpha:2:0.5:1");
   const auto dir = TempDir("csv");

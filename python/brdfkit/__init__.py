@@ -73,7 +73,7 @@ def check(model, params=None, *, sampling=True, samples=100000, random_pairs=400
 
 
 def albedo_table(model, params=None, *, axes="mu:32,alpha:32:0.001:1", nodes="uniform", tolerance=1e-6,
-                 accept_error=None, channel=0, part="total", threads=0):
+                 accept_error=None, channel=0, part="total", albedo_budget=1000000, threads=0):
     """Directional albedo table E(mu, p), E_avg(p) and the Kulla-Conty terms.
 
     As ``brdfkit albedo --json``; the tables are numpy arrays.
@@ -84,8 +84,11 @@ def albedo_table(model, params=None, *, axes="mu:32,alpha:32:0.001:1", nodes="un
     params : dict or str, optional
         Values of the parameters that are not axes.
     axes : str
-        ``mu:N`` then one or two parameters ``name:count[:lower:upper]``;
-        ``roughness`` sets ``alpha = roughness**2``.
+        ``mu:N`` then up to two parameters ``name:count[:lower:upper]``;
+        ``roughness`` sets ``alpha = roughness**2``. ``mu:N`` alone
+        tabulates E(mu) of the model as given (a measured table such as
+        ``"rgl:FILE"``, whose interpolation keeps the integrals from
+        converging much below 1e-4: ask for ``tolerance=1e-3``).
     nodes : {"uniform", "gauss"}
     tolerance : float
         Absolute error target per entry: the table's contract. A table with
@@ -97,6 +100,9 @@ def albedo_table(model, params=None, *, axes="mu:32,alpha:32:0.001:1", nodes="un
         RGB channel tabulated.
     part : {"total", "reflected", "transmitted"}
         For a transmitting model: E_R + E_T, E_R or E_T (other models: E).
+    albedo_budget : int
+        Evaluations per directional albedo after which the adaptive rule
+        stops refining (an entry above the tolerance by then is reported).
     threads : int
         Threads (0: every core).
 
@@ -110,7 +116,7 @@ def albedo_table(model, params=None, *, axes="mu:32,alpha:32:0.001:1", nodes="un
     import numpy as np
 
     t = _brdfkit._albedo_table(model, params, axes, nodes, tolerance, 0.0 if accept_error is None else accept_error,
-                               channel, part, threads)
+                               channel, part, albedo_budget, threads)
     for key in ("mu", "E", "E_avg", "ms_norm", "F_avg", "E1", "E1_avg", "F_ms"):
         if key in t:
             t[key] = np.asarray(t[key], dtype=float)

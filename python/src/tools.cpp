@@ -60,8 +60,10 @@ py::dict Check(const py::object& model, const py::object& params, bool sampling,
 
 py::dict AlbedoTableFn(const py::object& model, const py::object& params, const std::string& axes,
                        const std::string& nodes, double tolerance, double accept_error, int channel,
-                       const std::string& part, int threads) {
+                       const std::string& part, std::int64_t albedo_budget, int threads) {
   const ToolModel m = ToolModelArgument(model, params);
+  if (!(albedo_budget >= 1000 && albedo_budget <= 1000000000))
+    throw ArgumentError("albedo_budget must lie in [1000, 1e9] (got " + std::to_string(albedo_budget) + ")");
   if (nodes != "uniform" && nodes != "gauss")
     throw ArgumentError("nodes must be 'uniform' or 'gauss' (got '" + nodes + "')");
   if (!(tolerance >= 1e-12 && tolerance <= 1e-2))
@@ -71,6 +73,7 @@ py::dict AlbedoTableFn(const py::object& model, const py::object& params, const 
   req.axes = validate::ParseAxes(axes);
   req.rule = nodes == "gauss" ? validate::NodeRule::kGauss : validate::NodeRule::kUniform;
   req.quadrature.abs_tolerance = tolerance;
+  req.quadrature.max_evals = albedo_budget;
   req.quadrature.part = validate::ParsePart(part);
   req.channel = channel;
   validate::AlbedoTable t;
@@ -84,8 +87,7 @@ py::dict AlbedoTableFn(const py::object& model, const py::object& params, const 
   const std::vector<validate::AlbedoMiss> misses = validate::EntriesAboveTolerance(t, accepted);
   if (!misses.empty())
     throw ArgumentError(validate::DescribeMisses(misses, accepted) +
-                        "\nNarrow the parameter range (an alpha axis such as alpha:32:0.001:1), or accept a looser "
-                        "table with accept_error=.");
+                        "\n" + validate::MissAdvice(t) + ", or accept a looser table with accept_error=.");
   return ToPython(cli::AlbedoTableJson(t));
 }
 
@@ -445,7 +447,8 @@ void BindTools(py::module_& m) {
   m.def("_check", &Check, py::arg("model"), py::arg("params"), py::arg("sampling"), py::arg("samples"),
         py::arg("random_pairs"), py::arg("seed"), py::arg("albedo_budget"), py::arg("threads"));
   m.def("_albedo_table", &AlbedoTableFn, py::arg("model"), py::arg("params"), py::arg("axes"), py::arg("nodes"),
-        py::arg("tolerance"), py::arg("accept_error"), py::arg("channel"), py::arg("part"), py::arg("threads"));
+        py::arg("tolerance"), py::arg("accept_error"), py::arg("channel"), py::arg("part"), py::arg("albedo_budget"),
+        py::arg("threads"));
   m.def("_albedo_preset", &AlbedoPreset, py::arg("name"), py::arg("size"), py::arg("tables"), py::arg("tolerance"),
         py::arg("accept_error"), py::arg("threads"));
   m.def("_synth", &Synth, py::arg("model"), py::arg("params"), py::arg("instrument"), py::arg("seed"),

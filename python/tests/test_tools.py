@@ -55,6 +55,24 @@ def test_albedo_table_equals_cli():
     np.testing.assert_allclose(py["E"][10 + 1:], 1 - mu * np.log1p(1 / mu), atol=2e-5)
 
 
+def test_albedo_table_over_mu_alone_of_a_measured_table(tmp_path):
+    # A lambert table read back through ASTM: E(mu) is its albedo, as the
+    # command line gives it; the budget is passed on (too small a budget
+    # for a lobe leaves entries above the tolerance, a ValueError).
+    path = str(tmp_path / "l.astm")
+    brdfkit.write(path, brdfkit.Model("lambert", {"albedo": 0.25}))
+    py = brdfkit.albedo_table("astm:" + path, axes="mu:4")
+    ref = cli_json("albedo", "--model", "astm:" + path, "--axes", "mu:4", "--json")
+    assert py["axes"] == [] and py["E"].shape == (4,) and py["E_avg"].shape == (1,)
+    np.testing.assert_allclose(py["E"], 0.25, atol=1e-6)
+    for key in ("mu", "E", "E_avg", "ms_norm"):
+        np.testing.assert_array_equal(py[key], np.array(ref[key]))
+    with pytest.raises(ValueError, match="Ask for a looser tolerance"):
+        brdfkit.albedo_table("ggx", {"alpha": 0.001}, axes="mu:3", albedo_budget=1000)
+    with pytest.raises(ValueError, match="albedo_budget"):
+        brdfkit.albedo_table("ggx", axes="mu:3", albedo_budget=10)
+
+
 def test_albedo_preset_equals_cli_in_the_renderers_layout():
     py = brdfkit.albedo_preset("filament", size=4)
     ref = cli_json("albedo", "--preset", "filament", "--size", 4, "--json")
