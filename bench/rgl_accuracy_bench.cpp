@@ -48,7 +48,7 @@ int Run(int argc, char** argv) {
   formats::RglOptions half;
   half.theta_i = 40;
   half.ndf = 256;
-  half.vndf = 128;
+  half.vndf = 256;
   half.vndf_theta = 64;
   half.samples = 104;
   const bool given = full.samples != 0 || full.vndf != 0 || full.vndf_theta != 0 || full.theta_i != 0;

@@ -46,6 +46,25 @@ constexpr double kVndfSpread = 0.2, kLobeShare = 0.35, kUniformShare = 0.5, kBan
 // (the largest |cos(theta_o)| every row reaches), within kHorizonBand and
 // kAnisotropicBand.
 constexpr double kAnisotropicBand = 0.4;
+// The theta_i slices lie with density 1 / (kSliceCos + cos(theta_i)): the
+// horizon of the reflection moves fastest with theta_i towards grazing,
+// where the slices' blend at a fixed square coordinate errs most (lambert
+// and GGX 1 near the forward direction, the normals near the pole). 1 would
+// be uniform in tan(theta_i / 2), twice as dense at grazing as at normal
+// incidence; 0.6 makes it 2.5 times.
+constexpr double kSliceCos = 0.6;
+// Isotropic files: the row of relative azimuth phi holds the mass 1 +
+// kRowCrowd exp(-cos^2(phi) / (2 kRowWidth^2)), so that the value rows
+// (uniform in the square's s_y, which follows the row masses) lie about 2.4
+// times as dense 90 degrees off wi, where at grazing incidence the normal
+// that reflects wi onto the horizon sweeps from the equator to theta_m = 45
+// degrees within cot(theta_i) of cos(phi). The profile is the same in every
+// slice (the slices' blend at a fixed s_y needs one azimuth per s_y) and
+// wide (the Marginal2D conditional between two rows weighs them by their
+// masses: steep changes from row to row shift the band near the horizon).
+// Anisotropic files keep equal rows: theirs are absolute azimuths, and 90
+// degrees off wi moves with the phi_i slice.
+constexpr double kRowCrowd = 2, kRowWidth = 0.5;
 
 // The gap w of a slice at theta_i. At a query's horizon the cos(theta_o) of
 // the blended neighbours differ by up to the node spacing (|d cos(theta_o) /
@@ -218,7 +237,7 @@ RglOptions WithDefaults(RglOptions o) {
   const bool iso = o.phi_i == 0;
   if (o.theta_i == 0) o.theta_i = iso ? 80 : 32;
   if (o.vndf_theta == 0) o.vndf_theta = o.vndf != 0 ? o.vndf : iso ? 128 : 48;
-  if (o.vndf == 0) o.vndf = iso ? 256 : 48;
+  if (o.vndf == 0) o.vndf = iso ? 512 : 48;
   if (o.samples == 0) o.samples = iso ? 208 : 40;
   return o;
 }
@@ -315,11 +334,18 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
   const Warp2D sigma_table(sigma, ns, ns, {}, false);
 
   // Slices.
-  // Uniform in tan(theta / 2) (step 0 above); float as the file stores them.
+  // Density 1 / (c + cos theta) (step 0 above): int dtheta / (c + cos theta)
+  // = 2 / sqrt(1 - c^2) atanh(k tan(theta / 2)), k = sqrt((1 - c) / (1 + c)),
+  // so the nodes are uniform in atanh(k tan(theta / 2)); float as the file
+  // stores them.
   std::vector<double> theta_nodes(static_cast<std::size_t>(o.theta_i)), phi_nodes;
-  const double t_max = std::tan(o.theta_max_deg * kPi / 180 / 2);
-  for (std::size_t k = 0; k < theta_nodes.size(); ++k)
-    theta_nodes[k] = static_cast<float>(2 * std::atan(t_max * double(k) / double(theta_nodes.size() - 1)));
+  {
+    const double k = std::sqrt((1 - kSliceCos) / (1 + kSliceCos));
+    const double a_max = std::atanh(k * std::tan(o.theta_max_deg * kPi / 180 / 2));
+    for (std::size_t j = 0; j < theta_nodes.size(); ++j)
+      theta_nodes[j] =
+          static_cast<float>(2 * std::atan(std::tanh(a_max * double(j) / double(theta_nodes.size() - 1)) / k));
+  }
   if (iso) {
     phi_nodes = {0.0};
   } else {
@@ -369,9 +395,14 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
     const double gap = RestGap(theta_nodes[b], spacing);
     const double band =
         iso ? kHorizonBand : std::clamp(std::cos(double(theta_nodes[b])), kHorizonBand, kAnisotropicBand);
-    for (std::size_t y = 0; y < vy; ++y)
-      AlignedRow(theta_nodes[b], RB::UToPhi(double(y) / double(vy - 1)) - phi_i, gap, band, lobe.data() + y * vx, vx,
-                 out + y * vx);
+    for (std::size_t y = 0; y < vy; ++y) {
+      const double phi = RB::UToPhi(double(y) / double(vy - 1)) - phi_i;
+      AlignedRow(theta_nodes[b], phi, gap, band, lobe.data() + y * vx, vx, out + y * vx);
+      if (iso) {
+        const double c = std::cos(phi), row_mass = 1 + kRowCrowd * std::exp(-c * c / (2 * kRowWidth * kRowWidth));
+        for (std::size_t x = 0; x < vx; ++x) out[y * vx + x] = static_cast<float>(out[y * vx + x] * row_mass);
+      }
+    }
   });
   const Warp2D vndf_warp(vndf, vy, vx, {phi_nodes, theta_nodes}, true);
 
