@@ -34,7 +34,7 @@ void RegisterConvert(CLI::App& app) {
                   "RGL: value table nodes per axis, per slice (square: the format's readers require it; default: 208 "
                   "isotropic, 40 anisotropic)");
   cmd->add_option("--rgl-vndf", o.rgl.vndf,
-                  "RGL: vndf nodes along the azimuth of the normal (default: 256 isotropic, 48 anisotropic)");
+                  "RGL: vndf nodes along the azimuth of the normal (default: 512 isotropic, 48 anisotropic)");
   cmd->add_option("--rgl-vndf-theta", o.rgl.vndf_theta,
                   "RGL: vndf nodes along the elevation of the normal (default: as --rgl-vndf if given, else 128 isotropic, 48 "
                   "anisotropic)");

@@ -24,7 +24,8 @@ namespace {
 // above 1e-12 of its peak), high enough that the values stay within float.
 constexpr double kNdfFloor = 1e-12;
 // The vndf of a slice, row by row (a row: one azimuth of wm, u_x from the
-// pole to the equator). Every row holds the same mass, and within it a band
+// pole to the equator). Each row is built with mass 1 (then weighted, in
+// isotropic files, by kRowCrowd's profile below), and within it a band
 // around the horizon of wo whose density in cos(theta_o) is the same in
 // every row and slice: kBandShare times a Gaussian of cos(theta_o) /
 // kHorizonBand (anisotropic files: a width that changes slowly with

@@ -5,11 +5,11 @@
 // source. The writer is free in the slices, the ndf and the vndf (the
 // reconstruction needs only value x ndf / (4 sigma) right) and chooses them,
 // after the acquisition of Dupuy & Jakob 2018 (sec. 4-5), for interpolation:
-//  0. slices: theta_i nodes uniform in tan(theta_i / 2), so their spacing
-//     is proportional to 1 + cos(theta_i) (half as wide at grazing, where
-//     the reflection's horizon moves fastest with theta_i); an isotropic
-//     file holds one phi_i slice (phi_i = 0), which the format's readers
-//     take as constant in phi_i;
+//  0. slices: theta_i nodes with spacing proportional to 0.6 +
+//     cos(theta_i) (2.5 times as dense at grazing as at normal incidence:
+//     the reflection's horizon moves fastest with theta_i there); an
+//     isotropic file holds one phi_i slice (phi_i = 0), which the format's
+//     readers take as constant in phi_i;
 //  1. ndf: D(wm) from the retro-reflection, first D ~ f(wm, wm) cos^2
 //     theta_m, then one step of the height-correlated Smith fixed point D ~
 //     f(w, w) cos (2 sigma(w) - cos) (exact for such microfacet BRDFs, whose
@@ -19,8 +19,11 @@
 //  2. sigma(wi) = int D(m) <wi, m>+ dm, by the trapezoidal rule over the
 //     ndf nodes;
 //  3. vndf per slice (phi_i, theta_i), over the warped square (jacobian =
-//     1), in aligned rows (each row one azimuth of wm, all of the same
-//     mass): a band around the horizon of wo whose density in cos(theta_o)
+//     1), in aligned rows (each row one azimuth of wm; in isotropic files
+//     the rows 90 degrees off wi weigh up to 3 times as much, the same in
+//     every slice, so that the value rows lie denser where the horizon's
+//     normal sweeps at grazing incidence; in anisotropic files all rows
+//     weigh the same): a band around the horizon of wo whose density in cos(theta_o)
 //     is the same in every row and slice (40 %, a Gaussian of width 0.2 in
 //     cos(theta_o)), and the rest, visible normals (D(wm) + 0.2 sigma / pi)
 //     <wi, wm>+ u_x sin(theta_m) plus a uniform density (regular at the
