@@ -98,7 +98,7 @@ struct RglOptions {
   int symmetry = 1;
   int ndf = 512;             // ndf resolution (square)
   int sigma = 64;            // sigma resolution (square)
-  int vndf = 0;              // vndf rows per slice (azimuth of wm); 0: 256 isotropic, 48 anisotropic
+  int vndf = 0;              // vndf rows per slice (azimuth of wm); 0: 512 isotropic, 48 anisotropic
   int vndf_theta = 0;        // vndf columns per slice (elevation of wm); 0: as vndf if given, else 128 isotropic, 48 anisotropic
   // The value (rgb and luminance) tables are samples x samples per slice:
   // the format's readers (Mitsuba 3's measured plugin, the reference loader
