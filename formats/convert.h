@@ -51,14 +51,15 @@ struct ConvertOptions {
 nlohmann::json ModelSource(const BrdfFunction& f, const std::string& spec, const std::string& params,
                            ConvertOptions& options);
 
-// Tabulates f into `path` (format by its extension), atomically. Returns
-// what the sidecar records about the target: its path, format and
-// resolution, and a "warning" when the format cannot hold the source
-// (anisotropy in MERL).
 // The RGL options WriteFormat writes with: rgl.phi_i < 0 resolved (0 for an
 // isotropic source, RglAnisotropicSlices(symmetry) for an anisotropic one)
 // and the automatic resolutions filled in (WithDefaults).
 RglOptions RglTarget(const ConvertOptions& options);
+
+// Tabulates f into `path` (format by its extension), atomically. Returns
+// what the sidecar records about the target: its path, format and
+// resolution, and a "warning" when the format cannot hold the source
+// (anisotropy in MERL).
 nlohmann::json WriteFormat(const std::string& path, const BrdfFunction& f, const ConvertOptions& options);
 
 }  // namespace brdfkit::formats
