@@ -163,9 +163,10 @@ std::vector<T> SquareTable(std::size_t n, bool iso, const Value& value) {
 // One row of a slice's vndf (above): theta_i of the slice, phi the azimuth
 // of wm relative to wi's, gap the rest's (RestGap), band_width the band's
 // (kHorizonBand, or in anisotropic files kAnisotropicBand's rule), lobe the
-// row of the visible normals (a density over the square), n nodes.
+// row of the visible normals (a density over the square), n nodes, mass
+// the row's (its CDF's shape does not depend on it).
 void AlignedRow(double theta_i, double phi, double gap, double band_width, const double* lobe, std::size_t n,
-                float* out) {
+                double mass, float* out) {
   const double h = 1.0 / double(n - 1);
   // cos(theta_o) of the reflection of wi about wm = (theta, phi) is
   // r cos(2 theta - delta): one zero, at theta = (delta + pi / 2) / 2.
@@ -202,7 +203,7 @@ void AlignedRow(double theta_i, double phi, double gap, double band_width, const
   // stays positive, and that row's CDF misses 1 - kBelowHorizon at its horizon.
   alpha = std::max(alpha, 1e-3);
   beta = std::max(beta, 1e-3);
-  for (std::size_t x = 0; x < n; ++x) out[x] = static_cast<float>(alpha * left[x] + beta * right[x] + band[x]);
+  for (std::size_t x = 0; x < n; ++x) out[x] = static_cast<float>(mass * (alpha * left[x] + beta * right[x] + band[x]));
 }
 
 }  // namespace
@@ -397,12 +398,9 @@ TensorFile MakeRgl(const BrdfFunction& f, const RglOptions& options) {
     const double band =
         iso ? kHorizonBand : std::clamp(std::cos(double(theta_nodes[b])), kHorizonBand, kAnisotropicBand);
     for (std::size_t y = 0; y < vy; ++y) {
-      const double phi = RB::UToPhi(double(y) / double(vy - 1)) - phi_i;
-      AlignedRow(theta_nodes[b], phi, gap, band, lobe.data() + y * vx, vx, out + y * vx);
-      if (iso) {
-        const double c = std::cos(phi), row_mass = 1 + kRowCrowd * std::exp(-c * c / (2 * kRowWidth * kRowWidth));
-        for (std::size_t x = 0; x < vx; ++x) out[y * vx + x] = static_cast<float>(out[y * vx + x] * row_mass);
-      }
+      const double phi = RB::UToPhi(double(y) / double(vy - 1)) - phi_i, c = std::cos(phi);
+      const double row_mass = iso ? 1 + kRowCrowd * std::exp(-c * c / (2 * kRowWidth * kRowWidth)) : 1.0;
+      AlignedRow(theta_nodes[b], phi, gap, band, lobe.data() + y * vx, vx, row_mass, out + y * vx);
     }
   });
   const Warp2D vndf_warp(vndf, vy, vx, {phi_nodes, theta_nodes}, true);
