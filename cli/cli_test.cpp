@@ -22,6 +22,42 @@ using brdfkit::test::ReadText;
 using brdfkit::test::Shell;
 using brdfkit::test::WriteText;
 
+// A program that includes an albedo header (`prog`, written as
+// <stem>_main.c and <stem>_main.cpp), built by each compiler with -Wall
+// -Wextra -Werror -pedantic and run: it must exit 0 (its own checks) and
+// print one value per line of `expected` (the CSV's E column), to 1e-7
+// relative. Returns the number of values compared.
+std::size_t ExpectHeaderProgramPrints(const std::string& stem, const std::string& prog, const std::string& expected,
+                                      const std::vector<std::string>& compilers, const std::string& what) {
+  WriteText(stem + "_main.c", prog);
+  WriteText(stem + "_main.cpp", prog);
+  std::size_t count = 0;
+  for (const std::string& compiler : compilers) {
+    const bool cpp = compiler.find("++") != std::string::npos;
+    const std::string exe = stem + "_prog";
+    const CliRun c = Shell(compiler + " -Wall -Wextra -Werror -pedantic " + stem + (cpp ? "_main.cpp" : "_main.c") +
+                           " -o " + exe + " -lm");
+    EXPECT_EQ(c.code, 0) << compiler << " on " << what << ":\n" << c.out;
+    if (c.code != 0) return count;
+    const CliRun out = Shell(exe);
+    EXPECT_EQ(out.code, 0) << compiler << " on " << what << ": checks that failed\n" << out.out;
+    std::istringstream got(out.out), want(expected);
+    std::string g, w;
+    count = 0;
+    while (std::getline(want, w)) {
+      if (!std::getline(got, g)) {
+        ADD_FAILURE() << compiler << " on " << what << ": fewer values than the CSV";
+        return count;
+      }
+      const double gv = std::stod(g), wv = std::stod(w);
+      EXPECT_NEAR(gv, wv, 1e-7 * std::max(1.0, std::abs(wv))) << compiler << " on " << what << ", value " << count;
+      ++count;
+    }
+    EXPECT_FALSE(std::getline(got, g)) << compiler << " on " << what << ": more values than the CSV";
+  }
+  return count;
+}
+
 TEST(Cli, ModelsJsonListsEveryModelWithItsTable) {
   const CliRun r = Brdfkit("models --json");
   ASSERT_EQ(r.code, 0) << r.out;
@@ -190,8 +226,6 @@ TEST(Cli, AlbedoHeadersCompileAsCAndCppAndMatchTheCsv) {
     const std::string prog = "#include <math.h>\n#include <stdio.h>\n#include \"" + stem + ".h\"\n#include \"" + stem +
                              ".h\"\nint main(void) {\n  int i, j, m, bad = 0;\n  double a, v;\n  " + loops +
                              "\n  (void)j;\n" + checks + "  return bad;\n}\n";
-    WriteText(stem + "_main.c", prog);
-    WriteText(stem + "_main.cpp", prog);
     std::string expected;
     {
       // The CSV lists E as mu,<p1>[,<p2>],E with mu fastest: the C array's order.
@@ -200,27 +234,11 @@ TEST(Cli, AlbedoHeadersCompileAsCAndCppAndMatchTheCsv) {
       std::getline(in, line);
       while (std::getline(in, line)) expected += line.substr(line.rfind(',') + 1) + "\n";
     }
-    for (const std::string compiler : {"gcc -x c -std=c89", "gcc -x c -std=c11", "g++ -x c++ -std=c++11",
-                                       "clang -x c -std=c99", "clang++ -x c++ -std=c++20"}) {
-      const bool cpp = compiler.find("++") != std::string::npos;
-      const std::string exe = stem + "_prog";
-      const CliRun c = Shell(compiler + " -Wall -Wextra -Werror -pedantic " + stem + (cpp ? "_main.cpp" : "_main.c") +
-                             " -o " + exe + " -lm");
-      ASSERT_EQ(c.code, 0) << compiler << " on " << axes[k] << ":\n" << c.out;
-      const CliRun out = Shell(exe);
-      ASSERT_EQ(out.code, 0) << compiler << " on " << axes[k] << ": lookups that failed";
-      std::istringstream got(out.out), want(expected);
-      std::string g, w;
-      std::size_t count = 0;
-      while (std::getline(want, w)) {
-        ASSERT_TRUE(std::getline(got, g)) << "fewer values than the CSV";
-        const double gv = std::stod(g), wv = std::stod(w);
-        EXPECT_NEAR(gv, wv, 1e-7 * std::max(1.0, std::abs(wv))) << compiler << " value " << count;
-        ++count;
-      }
-      EXPECT_FALSE(std::getline(got, g)) << "more values than the CSV";
-      EXPECT_GT(count, 10u);
-    }
+    EXPECT_GT(ExpectHeaderProgramPrints(stem, prog, expected,
+                                        {"gcc -x c -std=c89", "gcc -x c -std=c11", "g++ -x c++ -std=c++11",
+                                         "clang -x c -std=c99", "clang++ -x c++ -std=c++20"},
+                                        axes[k]),
+              10u);
   }
 }
 
@@ -466,21 +484,8 @@ TEST(Cli, AlbedoOverMuAloneOfATableAndItsHeader) {
                            "    if (tab_E_lookup(tab_mu_nodes[m]) != tab_E[m]) ++bad;\n  }\n"
                            "  if (fabs(tab_E_avg[0] - 0.4) > 1e-6 || fabs(tab_ms_norm[0] * 3.14159265 * 0.6 - 1) > 1e-5) ++bad;\n"
                            "  return bad;\n}\n";
-  WriteText(stem + "_main.c", prog);
-  WriteText(stem + "_main.cpp", prog);
-  for (const std::string compiler : {"gcc -x c -std=c89", "g++ -x c++ -std=c++11"}) {
-    const bool cpp = compiler.find("++") != std::string::npos;
-    const CliRun c = Shell(compiler + " -Wall -Wextra -Werror -pedantic " + stem + (cpp ? "_main.cpp" : "_main.c") +
-                           " -o " + stem + "_prog -lm");
-    ASSERT_EQ(c.code, 0) << compiler << ":\n" << c.out;
-    const CliRun out = Shell(stem + "_prog");
-    ASSERT_EQ(out.code, 0) << compiler << ": lookups or averages that failed\n" << out.out;
-    std::istringstream got(out.out), want(expected);
-    for (std::string g, w; std::getline(want, w);) {
-      ASSERT_TRUE(std::getline(got, g));
-      EXPECT_NEAR(std::stod(g), std::stod(w), 1e-7);
-    }
-  }
+  EXPECT_EQ(ExpectHeaderProgramPrints(stem, prog, expected, {"gcc -x c -std=c89", "g++ -x c++ -std=c++11"}, "mu:6"),
+            6u);
 }
 
 // stress takes a measured table as every other command does (-m rgl:FILE)
