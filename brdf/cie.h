@@ -47,10 +47,16 @@ inline std::array<double, 3> XyzToLinearSrgb(const std::array<double, 3>& v) {
 // Weights w[c][k] such that channel c = sum_k w[c][k] s_k for a spectrum
 // given at the (strictly increasing) wavelengths lambda_k in nm, linear in
 // between; sum_k w[c][k] = 1 for each channel. The integral runs on a 0.1 nm
-// grid. A single wavelength is read as a flat spectrum.
+// grid. A single wavelength is read as a flat spectrum. Wavelengths lie in
+// [1, 1e5] nm (the grid then has at most 1e6 steps; beyond, a step count
+// would not fit an int).
 inline std::vector<std::array<double, 3>> RgbWeights(const std::vector<double>& lambda) {
   const std::size_t n = lambda.size();
   if (n == 0) throw std::invalid_argument("no wavelengths");
+  for (std::size_t k = 0; k < n; ++k)
+    if (!(lambda[k] >= 1 && lambda[k] <= 1e5))
+      throw std::invalid_argument("wavelength " + std::to_string(k) + " is " + std::to_string(lambda[k]) +
+                                  " nm, outside 1 to 1e5 nm");
   for (std::size_t k = 0; k + 1 < n; ++k)
     if (!(lambda[k + 1] > lambda[k]))
       throw std::invalid_argument("wavelengths must increase strictly (node " + std::to_string(k + 1) + ")");

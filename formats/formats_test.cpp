@@ -729,6 +729,12 @@ TEST(Formats, BadUtiaAndAstmFilesAreNamed) {
   ExpectError(text("NUM_POINTS 1\nVARS theta_i,phi_i,theta_s,phi_s,R,G,B\n0,0,0,0,1,1\n"), {a.string(), "line 3", "short row"});
   ExpectError(text("NUM_POINTS 2\nVARS theta_i,phi_i,theta_s,phi_s,BRDF\n0,0,0,0,1\n"), {a.string(), "line 1", "NUM_POINTS says 2"});
   ExpectError(text("NUM_POINTS 1\nVARS theta_i,phi_i,theta_s,phi_s,BRDF\n0,0,2.5,0,1\n"), {a.string(), "line 3", "theta_s"});
+  // A wavelength no spectrum has (the fuzzer's 6.5e105 nm once overflowed
+  // the observer's step count) is named, as is one out of order.
+  ExpectError(text("NUM_POINTS 1\nVARS theta_i,phi_i,theta_s,phi_s,450nm,550nm,6.5e105nm\n0.1,0,0.2,1,0.1,0.2,0.3\n"),
+              {a.string(), "VARS wavelengths", "wavelength 2", "outside 1 to 1e5 nm"});
+  ExpectError(text("NUM_POINTS 1\nVARS theta_i,phi_i,theta_s,phi_s,550nm,450nm\n0.1,0,0.2,1,0.1,0.2\n"),
+              {a.string(), "VARS wavelengths", "increase strictly"});
 }
 
 // A model source is anisotropic when it changes as the surface turns:
