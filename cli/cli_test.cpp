@@ -457,6 +457,15 @@ TEST(Cli, MeasuredTablesConserveEnergyForLightFromEveryDirection) {
     EXPECT_NEAR(er["E"][m].get<double>(), eg["E"][m].get<double>(), 5e-4) << "mu " << er["mu"][m];
   EXPECT_NEAR(er["E"][0].get<double>(), 0.951, 0.002);
   EXPECT_NEAR(er["E_avg"][0].get<double>(), eg["E_avg"][0].get<double>(), 5e-4);
+  // At the tables' 1e-6 contract the file's integrals cannot converge: the
+  // table is refused with the tolerance to ask for, and nothing is written
+  // (E_avg gives up after the first pass of its rule, not minutes later).
+  const std::string csv = (dir / "e.csv").string();
+  const CliRun strict = Brdfkit("albedo -m rgl:" + file + " --axes mu:3 --csv " + csv);
+  EXPECT_EQ(strict.code, 1) << strict.out;
+  EXPECT_NE(strict.out.find("E_avg: error estimate"), std::string::npos) << strict.out;
+  EXPECT_NE(strict.out.find("--tolerance 1e-3"), std::string::npos) << strict.out;
+  EXPECT_FALSE(fs::exists(csv));
 }
 
 // albedo over mu alone: a lambert table read back through UTIA is its

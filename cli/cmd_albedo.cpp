@@ -145,6 +145,7 @@ void RegisterAlbedo(CLI::App& app) {
     req.quadrature.abs_tolerance = tolerance;
     req.quadrature.max_evals = budget;
     req.quadrature.part = validate::ParsePart(part);
+    req.quadrature.accepted_error = std::max(accept_error, tolerance);
     req.channel = channel;
     if (!slice.empty()) {
       const std::size_t colon = slice.find(':');

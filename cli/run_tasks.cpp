@@ -231,6 +231,7 @@ TaskOutcome AlbedoTask::Run(const TaskSpec& spec, const RunContext& ctx) const {
   req.rule = t.gauss_nodes ? validate::NodeRule::kGauss : validate::NodeRule::kUniform;
   req.quadrature.abs_tolerance = t.tolerance;
   req.quadrature.part = validate::ParsePart(t.part);
+  req.quadrature.accepted_error = std::max(t.accept_error, t.tolerance);
   ThreadedProgress progress("albedo " + spec.name, ctx.quiet);
   req.progress = progress.Callback();
   const validate::AlbedoTable table = validate::BuildAlbedoTable(model, t.params, req);

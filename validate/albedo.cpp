@@ -35,14 +35,14 @@ namespace brdfkit::validate {
 
 Eigen::Array3d AdaptiveGaussKronrod(const std::function<Eigen::Array3d(double)>& f, double a, double b,
                                     std::vector<double> breakpoints, double abs_tolerance, int max_subdivisions,
-                                    double* error, std::int64_t* evals) {
+                                    double* error, std::int64_t* evals, const std::function<bool()>& stop) {
   std::int64_t n = 0;
   const auto g = [&](double x) {
     ++n;
     return QuadValue{f(x), Eigen::Array3d::Zero()};
   };
   const QuadValue r = AdaptiveKronrod(g, a, b, std::move(breakpoints), abs_tolerance, 0.0, max_subdivisions,
-                                      [] { return false; });
+                                      [&] { return stop && stop(); });
   if (error) *error = r.error.maxCoeff();
   if (evals) *evals += n;
   return r.value;
@@ -127,6 +127,9 @@ AlbedoValue AverageAlbedo(const Bxdf<double>& bxdf, const double* p, const LobeS
     worst = std::max(worst, e.error.maxCoeff() / is.abs_tolerance);
     return 2 * mu * mu * e.value * (2 * v);
   };
+  // The estimate below is at least 0.5 tol worst, and worst only grows:
+  // past the accepted error no refinement of the outer rule can bring it back.
+  const auto give_up = [&] { return 0.5 * o.abs_tolerance * worst > o.accepted_error; };
   const auto v_of = [](double s) { return std::sqrt(-s); };
   const double v0 = v_of(std::log(mu_min)), sw = std::log(std::min(shape.width, 1.0));
   // Panels: below, across and above the lobe-width dip.
@@ -149,9 +152,9 @@ AlbedoValue AverageAlbedo(const Bxdf<double>& bxdf, const double* p, const LobeS
     std::vector<double> u_breaks{0.0};
     for (double b : breaks) u_breaks.push_back(u_of(b));
     out.value = AdaptiveGaussKronrod(gu, u_of(0.0), u_of(v0), u_breaks, 0.5 * o.abs_tolerance, o.max_subdivisions,
-                                     &err, &n);
+                                     &err, &n, give_up);
   } else {
-    out.value = AdaptiveGaussKronrod(g, 0.0, v0, breaks, 0.5 * o.abs_tolerance, o.max_subdivisions, &err, &n);
+    out.value = AdaptiveGaussKronrod(g, 0.0, v0, breaks, 0.5 * o.abs_tolerance, o.max_subdivisions, &err, &n, give_up);
   }
   AlbedoQuadratureOptions mo = io;
   mo.abs_tolerance = NodeTolerance(o.abs_tolerance, mu_min);

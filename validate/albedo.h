@@ -27,6 +27,7 @@
 #include <cmath>
 #include <cstdint>
 #include <functional>
+#include <limits>
 #include <string>
 #include <utility>
 #include <vector>
@@ -56,6 +57,11 @@ struct AlbedoQuadratureOptions {
   // (a measured table, Phong's original) tabulates the power reflected from
   // light along wo as well (E_R; E_T = 0). Other models ignore it (E).
   enum class Part { kTotal, kReflected, kTransmitted } part = Part::kTotal;
+  // The largest error estimate the caller accepts. E_avg stops refining once
+  // its estimate is sure to end above it (a node of its rule missed its own
+  // target by too much): such a table is refused, and a measured table's
+  // average at 1e-6 would otherwise refine for minutes first.
+  double accepted_error = std::numeric_limits<double>::infinity();
   // The same as options of the adaptive rule of validate/integrators.h.
   IntegrateOptions Integrate(const LobeShape& shape) const {
     IntegrateOptions o;
@@ -84,9 +90,10 @@ AlbedoValue AverageAlbedo(const Bxdf<double>& bxdf, const double* params, const 
 // One-dimensional adaptive Gauss-Kronrod (7/15) of a vector-valued function
 // on [a, b] with initial breakpoints (inside (a, b), any order). Returns the
 // integral and stores the error estimate (max over components) in *error.
+// stop, when given, ends the refinement early (checked before each split).
 Eigen::Array3d AdaptiveGaussKronrod(const std::function<Eigen::Array3d(double)>& f, double a, double b,
                                     std::vector<double> breakpoints, double abs_tolerance, int max_subdivisions,
-                                    double* error, std::int64_t* evals);
+                                    double* error, std::int64_t* evals, const std::function<bool()>& stop = {});
 
 // --- tables ----------------------------------------------------------------
 

@@ -20,6 +20,7 @@
 #include "brdf/quadrature.h"
 #include "tests/test_util.h"
 #include "tests/scratch.h"
+#include "tests/known_merl.h"
 
 namespace brdfkit::validate {
 namespace {
@@ -213,6 +214,44 @@ TEST(AverageAlbedo, ResolvesTheEscapeConeOfDenseGlassSeenFromInside) {
       ref += t1 / 8 * gl.weight01(i) * 2 * std::cos(t) * std::sin(t) * e(std::cos(t));
     }
   EXPECT_NEAR(avg.value[0], ref, avg.error[0] + err + 1e-10);
+}
+
+// E_avg gives up once its error estimate is sure to end above the accepted
+// error: on a measured table (MERL's nearest bin: E converges slowly at
+// every node) after the first pass of its rule instead of every split it
+// may make, refused either way; an average within the accepted error (GGX)
+// is computed as before, to the bit.
+TEST(AverageAlbedo, GivesUpOnceTheAcceptedErrorIsOutOfReach) {
+  const Model merl = Model::Parse("merl", {{"path", test::KnownMerlFile()}});
+  const auto b = merl.Make<double>();
+  const std::vector<double> none;
+  const LobeShape shape = EstimateLobeShape(*b, none.data());
+  AlbedoQuadratureOptions o;
+  o.max_evals = 2000;
+  o.max_subdivisions = 20;
+  const AlbedoValue full = AverageAlbedo(*b, none.data(), shape, o);
+  AlbedoQuadratureOptions strict = o;
+  strict.accepted_error = o.abs_tolerance;
+  const AlbedoValue early = AverageAlbedo(*b, none.data(), shape, strict);
+  EXPECT_GT(full.error[0], strict.accepted_error);  // both are refused
+  EXPECT_GT(early.error[0], strict.accepted_error);
+  EXPECT_GT(full.evals, 5 * early.evals);  // 12 times at these settings
+  // An accepted error the average meets never stops it.
+  AlbedoQuadratureOptions loose = o;
+  loose.accepted_error = 2 * full.error[0];
+  const AlbedoValue same = AverageAlbedo(*b, none.data(), shape, loose);
+  EXPECT_EQ(same.value[0], full.value[0]);
+  EXPECT_EQ(same.error[0], full.error[0]);
+  const Model ggx = Model::Parse("ggx");
+  const auto g = ggx.Make<double>();
+  const std::vector<double> p = ParseParams(ggx.Info(), "alpha=0.05,f0=1");
+  const LobeShape g_shape = EstimateLobeShape(*g, p.data());
+  AlbedoQuadratureOptions fed, fed_strict;
+  fed_strict.accepted_error = fed.abs_tolerance;
+  const AlbedoValue a = AverageAlbedo(*g, p.data(), g_shape, fed), c = AverageAlbedo(*g, p.data(), g_shape, fed_strict);
+  EXPECT_LT(a.error[0], fed.abs_tolerance);
+  EXPECT_EQ(a.value[0], c.value[0]);
+  EXPECT_EQ(a.evals, c.evals);
 }
 
 // A roughness axis (renderers' convention, alpha = roughness^2) holds the

@@ -75,6 +75,7 @@ py::dict AlbedoTableFn(const py::object& model, const py::object& params, const 
   req.quadrature.abs_tolerance = tolerance;
   req.quadrature.max_evals = albedo_budget;
   req.quadrature.part = validate::ParsePart(part);
+  req.quadrature.accepted_error = std::max(accept_error, tolerance);
   req.channel = channel;
   validate::AlbedoTable t;
   RunTool(m, threads, [&](const CancelToken& token) {
