@@ -225,7 +225,10 @@ TaskOutcome AlbedoTask::Run(const TaskSpec& spec, const RunContext& ctx) const {
   const AlbedoTask& t = *this;
   TaskOutcome o;
   TaskDir dir(ctx, spec.name);
-  const Model model = Model::Parse(t.model);
+  // The model and its parameters, given or those of a material.
+  const LoadedModel lm = t.material.empty() ? LoadedModel{Model::Parse(t.model), t.params, {}}
+                                            : MaterialModel(ctx.scene.materials.at(t.material), ctx);
+  const Model& model = lm.model;
   validate::AlbedoTableRequest req;
   req.axes = validate::ParseAxes(t.axes);
   req.rule = t.gauss_nodes ? validate::NodeRule::kGauss : validate::NodeRule::kUniform;
@@ -234,13 +237,16 @@ TaskOutcome AlbedoTask::Run(const TaskSpec& spec, const RunContext& ctx) const {
   req.quadrature.accepted_error = std::max(t.accept_error, t.tolerance);
   ThreadedProgress progress("albedo " + spec.name, ctx.quiet);
   req.progress = progress.Callback();
-  const validate::AlbedoTable table = validate::BuildAlbedoTable(model, t.params, req);
+  const validate::AlbedoTable table = validate::BuildAlbedoTable(model, lm.params, req);
   progress.Finish();
   const double accepted = std::max(t.accept_error, t.tolerance);
   const std::vector<validate::AlbedoMiss> misses = validate::EntriesAboveTolerance(table, accepted);
   if (!misses.empty())
-    throw ResultError("task '" + spec.name + "': " + validate::DescribeMisses(misses, accepted) +
-                      "\nNarrow the parameter range in \"axes\" or set \"accept_error\".");
+    throw ResultError("task '" + spec.name + "': " + validate::DescribeMisses(misses, accepted) + "\n" +
+                      (table.params.empty() ? "Loosen \"tolerance\" (a measured table's interpolation keeps its "
+                                              "integrals from converging much below 1e-4: 1e-3)"
+                                            : "Narrow the parameter range in \"axes\"") +
+                      " or set \"accept_error\".");
   for (const std::string& f : t.formats) {
     if (f == "csv") {
       validate::WriteAlbedoCsv(table, dir.Abs("albedo.csv"));
@@ -250,11 +256,30 @@ TaskOutcome AlbedoTask::Run(const TaskSpec& spec, const RunContext& ctx) const {
       validate::WriteAlbedoExr(table, dir.Abs("albedo.exr"));
       o.files.push_back(dir.Rel("albedo.exr"));
     } else if (f == "header") {
-      std::string prefix;
-      for (char c : model.Spec()) prefix += std::isalnum(static_cast<unsigned char>(c)) ? c : '_';
+      // The material's name or the model's, as a C identifier.
+      std::string prefix = std::isdigit(static_cast<unsigned char>(t.material[0])) ? "m_" : "";
+      for (char c : t.material.empty() ? model.Spec() : t.material)
+        prefix += std::isalnum(static_cast<unsigned char>(c)) ? c : '_';
       validate::WriteAlbedoHeader(table, dir.Abs("albedo.h"), prefix + "_albedo");
       o.files.push_back(dir.Rel("albedo.h"));
     }
+  }
+  json axes = json::array();
+  for (const validate::Axis& a : table.params) axes.push_back({{"name", a.name}, {"nodes", a.nodes}});
+  o.result = {{"model", table.model},      {"params", table.params_text}, {"part", table.part.empty() ? "E" : table.part},
+              {"mu", table.mu.nodes},
+              {"axes", axes},              {"E_avg", table.E_avg},         {"entries", table.E.size()},
+              {"max_error", table.max_error}, {"limit_error", table.limit_error}, {"table_seconds", table.seconds}};
+  if (!t.material.empty()) o.result["material"] = t.material;
+  const std::string of = t.material.empty() ? table.model : "material '" + t.material + "' (" + table.model + ")";
+  if (table.params.empty()) {
+    // Over mu alone: E(mu) as a line, E_avg in the caption.
+    validate::LinePlot(dir.Abs("E.svg"), "E(mu) of " + of, "mu = cos theta_o", "directional albedo E",
+                       {{"E", table.mu.nodes, table.E}}, false, false);
+    o.figures.push_back({"Directional albedo of " + of, dir.Rel("E.svg"),
+                         "E(mu); E_avg = 2 int E(mu) mu dmu = " + FormatDouble(table.E_avg[0]) +
+                             "; largest error estimate " + FormatDouble(table.max_error) + "."});
+    return o;
   }
   // Figures: E over (mu, first parameter) at the first node of a second
   // parameter, and E_avg over the first parameter.
@@ -264,7 +289,7 @@ TaskOutcome AlbedoTask::Run(const TaskSpec& spec, const RunContext& ctx) const {
     for (std::size_t m = 0; m < table.n_mu(); ++m) e[i1 * table.n_mu() + m] = table.at(m, i1, 0);
   std::string slice;
   if (table.params.size() > 1) slice = " at " + table.params[1].name + " = " + FormatDouble(table.params[1].nodes[0]);
-  validate::HeatMap(dir.Abs("E.svg"), "E(mu, " + a1.name + ") of " + table.model + slice, "mu = cos theta_o", a1.name,
+  validate::HeatMap(dir.Abs("E.svg"), "E(mu, " + a1.name + ") of " + of + slice, "mu = cos theta_o", a1.name,
                     table.mu.nodes, a1.nodes, e, {"directional albedo E", 0.0, NAN, false});
   std::vector<validate::Series> avg;
   for (std::size_t i2 = 0; i2 < std::min<std::size_t>(table.n2(), 8); ++i2) {
@@ -274,17 +299,11 @@ TaskOutcome AlbedoTask::Run(const TaskSpec& spec, const RunContext& ctx) const {
     for (std::size_t i1 = 0; i1 < table.n1(); ++i1) s.y.push_back(table.E_avg[i1 * table.n2() + i2]);
     avg.push_back(s);
   }
-  validate::LinePlot(dir.Abs("E_avg.svg"), "average albedo E_avg of " + table.model, a1.name, "E_avg", avg, false, false);
-  o.figures.push_back({"Directional albedo of " + table.model, dir.Rel("E.svg"),
+  validate::LinePlot(dir.Abs("E_avg.svg"), "average albedo E_avg of " + of, a1.name, "E_avg", avg, false, false);
+  o.figures.push_back({"Directional albedo of " + of, dir.Rel("E.svg"),
                        "E(mu, " + a1.name + ")" + slice + "; colour scale from 0; largest error estimate " + FormatDouble(table.max_error) + "."});
-  o.figures.push_back({"Average albedo of " + table.model, dir.Rel("E_avg.svg"),
+  o.figures.push_back({"Average albedo of " + of, dir.Rel("E_avg.svg"),
                        "E_avg = 2 int E(mu) mu dmu; the Kulla-Conty lobe's normalisation is 1 / (pi (1 - E_avg))."});
-  json axes = json::array();
-  for (const validate::Axis& a : table.params) axes.push_back({{"name", a.name}, {"nodes", a.nodes}});
-  o.result = {{"model", table.model},      {"params", table.params_text}, {"part", table.part.empty() ? "E" : table.part},
-              {"mu", table.mu.nodes},
-              {"axes", axes},              {"E_avg", table.E_avg},         {"entries", table.E.size()},
-              {"max_error", table.max_error}, {"limit_error", table.limit_error}, {"table_seconds", table.seconds}};
   return o;
 }
 

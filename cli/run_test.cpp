@@ -295,6 +295,52 @@ TEST(Run, APresetTaskWritesTheRenderersFilesAndAFigurePerTable) {
   EXPECT_LT(h.find("table_ggx_E[1024]"), h.find("table_ggx_Eavg[32]"));
 }
 
+// An albedo task tabulates a material of the scene as it is, over mu alone
+// (a measured lambert table read back through UTIA: E is its albedo at the
+// tables' 1e-6; an analytic material: the same entries as its model and
+// parameters given in the task), or a fitted one over its fit's parameters
+// (the plan runs the fit first; the table holds the fitted values of the
+// others).
+TEST(Run, AlbedoTasksTabulateTheScenesMaterials) {
+  const fs::path d = FreshDir("albedo-materials");
+  ASSERT_EQ(Brdfkit("convert -m lambert -p albedo=0.4 --no-sidecar " + (d / "l.utia").string()).code, 0);
+  json s = SmallScene({"e_lam", "e_plastic", "e_model", "e_fitted"});
+  s["materials"]["lam"] = {{"measured", "l.utia"}};
+  s["tasks"].push_back({{"name", "e_lam"}, {"type", "albedo"}, {"material", "lam"}, {"axes", "mu:5"},
+                        {"formats", {"csv", "header"}}});
+  s["tasks"].push_back({{"name", "e_plastic"}, {"type", "albedo"}, {"material", "plastic"}, {"formats", {"csv"}}});
+  s["tasks"].push_back({{"name", "e_model"}, {"type", "albedo"}, {"model", "lambert+ggx"},
+                        {"params", s["materials"]["plastic"]["params"]}, {"axes", "mu:32"}, {"formats", {"csv"}}});
+  s["tasks"].push_back({{"name", "e_fitted"}, {"type", "albedo"}, {"material", "fitted"},
+                        {"axes", "mu:4,ggx.alpha:2:0.1:0.3"}, {"formats", {"csv"}}});
+  WriteText(d / "scene.json", s.dump(2));
+  const CliRun r = Brdfkit("run " + (d / "scene.json").string() + " --out " + (d / "out").string() + " --quiet");
+  ASSERT_EQ(r.code, 0) << r.out;
+  const json results = json::parse(ReadText(d / "out" / "results.json"));
+  std::map<std::string, json> by_name;
+  for (const json& t : results.at("tasks")) by_name[t.at("name").get<std::string>()] = t;
+  ASSERT_EQ(by_name.count("fit_a"), 1u) << "the fitted material's fit runs first";
+  const json& lam = by_name.at("e_lam").at("result");
+  EXPECT_EQ(lam.at("material"), "lam");
+  EXPECT_EQ(lam.at("model"), "utia");
+  EXPECT_TRUE(lam.at("axes").empty());
+  EXPECT_NEAR(lam.at("E_avg")[0].get<double>(), 0.4, 1e-6);
+  EXPECT_LE(lam.at("max_error").get<double>(), 1e-6);
+  EXPECT_NE(ReadText(d / "out" / "e_lam" / "albedo.h").find("lam_albedo"), std::string::npos);
+  EXPECT_TRUE(fs::exists(d / "out" / "e_lam" / "E.svg"));
+  EXPECT_FALSE(fs::exists(d / "out" / "e_lam" / "E_avg.svg"));
+  EXPECT_EQ(ReadText(d / "out" / "e_plastic" / "albedo.csv"), ReadText(d / "out" / "e_model" / "albedo.csv"));
+  EXPECT_EQ(by_name.at("e_plastic").at("result").at("E_avg"), by_name.at("e_model").at("result").at("E_avg"));
+  const json& fitted = by_name.at("e_fitted").at("result");
+  EXPECT_EQ(fitted.at("axes")[0].at("name"), "ggx.alpha");
+  EXPECT_EQ(fitted.at("E_avg").size(), 2u);
+  // The parameters held fixed are the fit's: lambert's albedo of red 0.1.
+  const std::string fixed = fitted.at("params").get<std::string>();
+  const std::size_t at = fixed.find("lambert.albedo=");
+  ASSERT_NE(at, std::string::npos) << fixed;
+  EXPECT_NEAR(std::stod(fixed.substr(at + 15)), 0.1, 0.01) << fixed;
+}
+
 TEST(Run, MalformedScenesAreRejectedBeforeAnyWork) {
   const fs::path d = FreshDir("malformed");
   struct Case {
@@ -331,6 +377,18 @@ TEST(Run, MalformedScenesAreRejectedBeforeAnyWork) {
   small_budget["tasks"][5]["albedo_budget"] = 10;
   json bad_preset = SmallScene();
   bad_preset["tasks"][0] = {{"name", "t"}, {"type", "albedo"}, {"preset", "unreal"}};
+  json model_and_material = SmallScene();
+  model_and_material["tasks"][0]["material"] = "plastic";
+  json table_albedo = check_table;
+  table_albedo["tasks"][0] = {{"name", "t"}, {"type", "albedo"}, {"material", "tab"}};
+  json material_params = SmallScene();
+  material_params["tasks"][0] = {{"name", "t"}, {"type", "albedo"}, {"material", "plastic"}, {"params", {{"ggx.alpha", 0.1}}}};
+  json material_axis = SmallScene();
+  material_axis["tasks"][0] = {{"name", "t"}, {"type", "albedo"}, {"material", "phong"}, {"axes", "mu:8,alpha:4"}};
+  json fitted_axis = SmallScene();
+  fitted_axis["tasks"][0] = {{"name", "t"}, {"type", "albedo"}, {"material", "fitted"}, {"axes", "mu:8,beckmann.alpha:4"}};
+  json no_model = SmallScene();
+  no_model["tasks"][0] = {{"name", "t"}, {"type", "albedo"}, {"axes", "mu:8"}};
   const std::vector<Case> cases = {
       {"bad_json", "{\n  \"tasks\": [\n    {\"name\": \"a\",, }\n  ]\n}\n", "line 3"},
       {"overflow", "{\"tasks\": [{\"name\": \"a\", \"type\": \"check\", \"samples\": 1E60799}]}", "number overflow"},
@@ -349,6 +407,12 @@ TEST(Run, MalformedScenesAreRejectedBeforeAnyWork) {
       {"bad_preset", bad_preset.dump(2), "tasks[0].preset: unknown table preset 'unreal'"},
       {"fixed_size", fixed_size.dump(2), "tasks[0].size: preset 'cycles' has Cycles' fixed sizes"},
       {"small_budget", small_budget.dump(2), "tasks[5].albedo_budget"},
+      {"model_and_material", model_and_material.dump(2), "tasks[0].material: give \"model\" or \"material\", not both"},
+      {"table_albedo", table_albedo.dump(2), "tasks[0].material: 'tab' is a data table, which has no BRDF to tabulate"},
+      {"material_params", material_params.dump(2), "tasks[0].params: a material has its own parameters"},
+      {"material_axis", material_axis.dump(2), "tasks[0].axes: axis 'alpha' is not a parameter of model 'phong_original'"},
+      {"fitted_axis", fitted_axis.dump(2), "tasks[0].axes: axis 'beckmann.alpha' is not a parameter of model 'lambert+ggx'"},
+      {"no_model", no_model.dump(2), "tasks[0].model: missing: give \"model\" (and \"params\"), \"material\" or \"preset\""},
   };
   for (const Case& c : cases) {
     const fs::path scene = d / (c.name + ".json");

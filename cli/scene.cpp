@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <optional>
 #include <set>
 #include <sstream>
 #include <stdexcept>
@@ -323,7 +324,7 @@ void CheckTask::Parse(SceneReader& r, const Scene& s) {
                               validate::CheckOptions::kMaxAlbedoBudget);
 }
 
-void AlbedoTask::Parse(SceneReader& r, const Scene& /*scene*/) {
+void AlbedoTask::Parse(SceneReader& r, const Scene& s) {
   AlbedoTask& t = *this;
   t.formats = r.Strings("formats", false);
   if (!r.Has("formats")) t.formats = {"csv", "exr", "header"};
@@ -336,8 +337,9 @@ void AlbedoTask::Parse(SceneReader& r, const Scene& /*scene*/) {
     } catch (const ModelError& e) {
       r.FailKey("preset", e.what());
     }
-    for (const char* key : {"model", "params", "axes", "nodes", "part"})
-      if (r.Has(key)) r.FailKey(key, "a preset has its own models and axes: give \"preset\" or \"model\", not both");
+    for (const char* key : {"model", "material", "params", "axes", "nodes", "part"})
+      if (r.Has(key))
+        r.FailKey(key, "a preset has its own models and axes: give \"preset\", \"model\" or \"material\", only one");
     const std::vector<std::string> names = validate::PresetTableNames(t.preset);
     t.tables = r.Strings("tables", false);
     for (std::size_t i = 0; i < t.tables.size(); ++i)
@@ -359,17 +361,36 @@ void AlbedoTask::Parse(SceneReader& r, const Scene& /*scene*/) {
   }
   for (const char* key : {"tables", "size"})
     if (r.Has(key)) r.FailKey(key, "only with \"preset\"");
-  const Model model = ParseModelAt(r, "model");
-  if (!model.Info().settings.empty()) r.FailKey("model", "albedo tables are made of analytic models");
-  t.model = model.Spec();
-  t.params = ReadParams(r, "params", model.Info());
+  if (r.Has("model") && r.Has("material")) r.FailKey("material", "give \"model\" or \"material\", not both");
+  if (!r.Has("model") && !r.Has("material"))
+    r.FailKey("model", "missing: give \"model\" (and \"params\"), \"material\" or \"preset\"");
+  // The model whose parameters the axes may name; a fitted material's is
+  // its fit task's, checked once every task is read (CheckFittedAlbedoAxes).
+  std::optional<Model> model;
+  if (r.Has("model")) {
+    model = ParseModelAt(r, "model");
+    if (!model->Info().settings.empty())
+      r.FailKey("model", "'" + model->Spec() + "' reads a file: make it a material (\"measured\": FILE) and name it in \"material\"");
+    t.model = model->Spec();
+    t.params = ReadParams(r, "params", model->Info());
+  } else {
+    t.material = r.String("material");
+    const MaterialSpec& m = NeedMaterial(r, s, "material", t.material);
+    if (m.kind == MaterialSpec::Kind::kTable)
+      r.FailKey("material", "'" + m.name + "' is a data table, which has no BRDF to tabulate (fit a model to it first)");
+    if (r.Has("params")) r.FailKey("params", "a material has its own parameters (give \"model\" to set them)");
+    if (m.kind == MaterialSpec::Kind::kAnalytic) model = Model::Parse(m.model);
+    if (m.kind == MaterialSpec::Kind::kMeasured) model = Model::Parse(m.model, Settings{{"path", m.path}});
+  }
   t.axes = r.String("axes", t.axes);
+  if (!r.Has("axes") && !t.material.empty()) t.axes = "mu:32";  // a material as it is
   try {
     const auto axes = validate::ParseAxes(t.axes);
     if (axes.empty() || axes[0].name != "mu") throw std::runtime_error("the first axis must be mu:N");
-    if (axes.size() < 2 || axes.size() > 3)
-      throw std::runtime_error("give mu and one or two parameters, e.g. mu:32,alpha:32");
-    for (std::size_t i = 1; i < axes.size(); ++i) validate::AxisParameter(model.Info(), axes[i].name);
+    if (axes.size() > 3)
+      throw std::runtime_error("give mu alone or mu and one or two parameters, e.g. mu:32,alpha:32");
+    if (model)
+      for (std::size_t i = 1; i < axes.size(); ++i) validate::AxisParameter(model->Info(), axes[i].name);
   } catch (const std::exception& e) {
     r.FailKey("axes", e.what());
   }
@@ -613,6 +634,18 @@ Scene ParseScene(const std::string& text, const std::string& origin, const std::
     const TaskSpec* t = s.FindTask(m.fit_task);
     if (!t || !t->As<FitTask>())
       Fail(s.origin, "materials." + name + ".fit", "no fit task named '" + m.fit_task + "'");
+  }
+  // The axes of albedo tasks over a fitted material name its fit's parameters.
+  for (std::size_t k = 0; k < s.tasks.size(); ++k) {
+    const AlbedoTask* a = s.tasks[k].As<AlbedoTask>();
+    if (!a || a->material.empty() || s.materials.at(a->material).kind != MaterialSpec::Kind::kFit) continue;
+    const Model fitted = Model::Parse(s.FindTask(s.materials.at(a->material).fit_task)->As<FitTask>()->model);
+    const auto axes = validate::ParseAxes(a->axes);
+    try {
+      for (std::size_t i = 1; i < axes.size(); ++i) validate::AxisParameter(fitted.Info(), axes[i].name);
+    } catch (const std::exception& e) {
+      Fail(s.origin, "tasks[" + std::to_string(k) + "].axes", e.what());
+    }
   }
 
   // Requested outputs.

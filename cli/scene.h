@@ -73,6 +73,9 @@ struct AlbedoTask : TaskTypeBase {
   static constexpr const char* kName = "albedo";
   std::string model;
   std::vector<double> params;  // fixed parameter values (packed)
+  // Or a material of the scene (analytic, measured or fitted) in place of
+  // model and params; a measured one is tabulated over mu alone.
+  std::string material;
   std::string axes = "mu:32,alpha:32:0.001:1";  // within the tables' 1e-6 contract
   bool gauss_nodes = false;
   double tolerance = 1e-6;  // as validate::AlbedoQuadratureOptions
@@ -85,6 +88,9 @@ struct AlbedoTask : TaskTypeBase {
   int size = 0;  // nodes per axis of a preset (0: its default; validate::PresetSize)
 
   void Parse(SceneReader& r, const Scene& s);
+  std::vector<std::string> Materials() const {
+    return material.empty() ? std::vector<std::string>{} : std::vector<std::string>{material};
+  }
   TaskOutcome Run(const TaskSpec& t, const RunContext& ctx) const;
   TaskOutcome RunPreset(const TaskSpec& t, const RunContext& ctx) const;
 };

@@ -38,4 +38,14 @@ rejected(lambda s: s["materials"].update({"two": {"model": "ggx", "merl": "x.bin
 rejected(lambda s: s["tasks"][3].update({"metric": "l3"}), "an unknown metric")
 rejected(lambda s: s["tasks"][3].update({"fix": 0.04}), "a number for fix (name=value text)")
 rejected(lambda s: s["tasks"][3].update({"bounds": ["ggx.alpha=0.01:0.5"]}), "a list for bounds")
-print(f"{len(scenes)} example scene(s) valid; 10 faulty scenes rejected")
+rejected(lambda s: s["tasks"][1].update({"material": "plastic"}), "an albedo task with a model and a material")
+
+# An albedo task over a material of the scene (mu alone by default) validates.
+material_table = copy.deepcopy(base)
+albedo = next(t for t in material_table["tasks"] if t["type"] == "albedo" and "model" in t)
+for key in ("model", "params", "axes"):
+    albedo.pop(key, None)
+albedo["material"] = next(iter(material_table["materials"]))
+errors = list(validator.iter_errors(material_table))
+assert not errors, f"an albedo task over a material: {errors[0].message}"
+print(f"{len(scenes)} example scene(s) valid, and an albedo task over a material; 11 faulty scenes rejected")
