@@ -387,8 +387,12 @@ TEST(Run, MalformedScenesAreRejectedBeforeAnyWork) {
   material_axis["tasks"][0] = {{"name", "t"}, {"type", "albedo"}, {"material", "phong"}, {"axes", "mu:8,alpha:4"}};
   json fitted_axis = SmallScene();
   fitted_axis["tasks"][0] = {{"name", "t"}, {"type", "albedo"}, {"material", "fitted"}, {"axes", "mu:8,beckmann.alpha:4"}};
+  json measured_axis = check_table;
+  measured_axis["materials"]["tab"] = {{"measured", "l.utia"}};
+  measured_axis["tasks"][0] = {{"name", "t"}, {"type", "albedo"}, {"material", "tab"}, {"axes", "mu:8,albedo:2"}};
   json no_model = SmallScene();
   no_model["tasks"][0] = {{"name", "t"}, {"type", "albedo"}, {"axes", "mu:8"}};
+  ASSERT_EQ(Brdfkit("convert -m lambert --no-sidecar " + (d / "l.utia").string()).code, 0);
   const std::vector<Case> cases = {
       {"bad_json", "{\n  \"tasks\": [\n    {\"name\": \"a\",, }\n  ]\n}\n", "line 3"},
       {"overflow", "{\"tasks\": [{\"name\": \"a\", \"type\": \"check\", \"samples\": 1E60799}]}", "number overflow"},
@@ -412,6 +416,7 @@ TEST(Run, MalformedScenesAreRejectedBeforeAnyWork) {
       {"material_params", material_params.dump(2), "tasks[0].params: a material has its own parameters"},
       {"material_axis", material_axis.dump(2), "tasks[0].axes: axis 'alpha' is not a parameter of model 'phong_original'"},
       {"fitted_axis", fitted_axis.dump(2), "tasks[0].axes: axis 'beckmann.alpha' is not a parameter of model 'lambert+ggx'"},
+      {"measured_axis", measured_axis.dump(2), "tasks[0].axes: 'tab' is measured data, which has no parameters"},
       {"no_model", no_model.dump(2), "tasks[0].model: missing: give \"model\" (and \"params\"), \"material\" or \"preset\""},
   };
   for (const Case& c : cases) {

@@ -365,8 +365,9 @@ void AlbedoTask::Parse(SceneReader& r, const Scene& s) {
   if (!r.Has("model") && !r.Has("material"))
     r.FailKey("model", "missing: give \"model\" (and \"params\"), \"material\" or \"preset\"");
   // The model whose parameters the axes may name; a fitted material's is
-  // its fit task's, checked once every task is read (CheckFittedAlbedoAxes).
+  // its fit task's, checked once every task is read (ParseScene).
   std::optional<Model> model;
+  bool measured = false;
   if (r.Has("model")) {
     model = ParseModelAt(r, "model");
     if (!model->Info().settings.empty())
@@ -380,7 +381,7 @@ void AlbedoTask::Parse(SceneReader& r, const Scene& s) {
       r.FailKey("material", "'" + m.name + "' is a data table, which has no BRDF to tabulate (fit a model to it first)");
     if (r.Has("params")) r.FailKey("params", "a material has its own parameters (give \"model\" to set them)");
     if (m.kind == MaterialSpec::Kind::kAnalytic) model = Model::Parse(m.model);
-    if (m.kind == MaterialSpec::Kind::kMeasured) model = Model::Parse(m.model, Settings{{"path", m.path}});
+    measured = m.kind == MaterialSpec::Kind::kMeasured;
   }
   t.axes = r.String("axes", t.axes);
   if (!r.Has("axes") && !t.material.empty()) t.axes = "mu:32";  // a material as it is
@@ -389,6 +390,8 @@ void AlbedoTask::Parse(SceneReader& r, const Scene& s) {
     if (axes.empty() || axes[0].name != "mu") throw std::runtime_error("the first axis must be mu:N");
     if (axes.size() > 3)
       throw std::runtime_error("give mu alone or mu and one or two parameters, e.g. mu:32,alpha:32");
+    if (measured && axes.size() > 1)
+      throw std::runtime_error("'" + t.material + "' is measured data, which has no parameters: give mu alone, e.g. mu:32");
     if (model)
       for (std::size_t i = 1; i < axes.size(); ++i) validate::AxisParameter(model->Info(), axes[i].name);
   } catch (const std::exception& e) {
