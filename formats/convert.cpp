@@ -145,15 +145,20 @@ nlohmann::json WriteFormat(const std::string& path, const BrdfFunction& f, const
       const RglOptions r = RglTarget(o);
       const TensorFile t = MakeRgl(f, r);
       const RglBsdf back = RglBsdf::FromTensors(t, "RGL file '" + path + "'");
-      const RglAccuracy acc = MeasureRglAccuracy(back, f);
+      const RglAccuracy acc = MeasureRglAccuracy(back, f), grazing = MeasureRglAccuracyTowardsGrazing(back, f);
       t.Write(path);
       j["resolution"] = {{"theta_i", r.theta_i}, {"theta_max_deg", r.theta_max_deg}, {"phi_i", r.phi_i},
                          {"symmetry", r.symmetry},
                          {"ndf", r.ndf}, {"sigma", r.sigma}, {"vndf", r.vndf}, {"vndf_theta", r.vndf_theta}, {"samples", r.samples}};
       j["isotropic"] = r.phi_i == 0;
-      j["reconstruction"] = {{"max_relative", acc.max_relative}, {"p99_relative", acc.p99_relative},
-                             {"mean_relative", acc.mean_relative}, {"points", acc.points},
-                             {"where", acc.where}};
+      const auto accuracy = [](const RglAccuracy& a) {
+        return nlohmann::json{{"max_relative", a.max_relative}, {"p99_relative", a.p99_relative},
+                              {"mean_relative", a.mean_relative}, {"points", a.points}, {"where", a.where}};
+      };
+      j["reconstruction"] = accuracy(acc);
+      j["reconstruction_towards_grazing"] = accuracy(grazing);
+      j["reconstruction_towards_grazing"]["beyond"] =
+          "beyond theta_i = " + FormatDouble(r.theta_max_deg) + " deg the format's readers hold the last slice";
       break;
     }
     case Format::kAstm:

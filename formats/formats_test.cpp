@@ -252,6 +252,8 @@ TEST(RglWriter, ReconstructionAccuracyAtTheDefaultResolution) {
         if (ref > 0.01 * peak) worst = std::max(worst, std::abs(r.FrCos(wi, wo)[1] - ref) / ref);
     }
     EXPECT_LT(worst, c.grazing);
+    // The sidecar's measure towards grazing runs the same rule.
+    EXPECT_NEAR(MeasureRglAccuracyTowardsGrazing(r, g.Function()).max_relative, worst, 1e-12);
   }
 }
 
@@ -791,6 +793,9 @@ TEST(Formats, ConvertCommand) {
                       "grid (theta_o 0.5, 1.5 ..) below theta_o 90 deg"),
             std::string::npos)
       << side;
+  // And the measure towards grazing incidence, to the last slice and beyond.
+  EXPECT_NE(side.find("theta_i 80..87.5 deg in steps of 0.25, wo"), std::string::npos) << side;
+  EXPECT_NE(side.find("beyond theta_i = 87.5 deg the format's readers hold the last slice"), std::string::npos) << side;
   const auto ev = test::Brdfkit("eval --model rgl:" + out.string() + " --wi-deg 20,0 --wo-deg 40,120 --json");
   ASSERT_EQ(ev.code, 0) << ev.out;
   // 0.4 / pi = 0.1273, within the 3 % this coarse test resolution reaches.

@@ -455,13 +455,18 @@ void WriteRgl(const std::string& path, const BrdfFunction& f, const RglOptions& 
   MakeRgl(f, options).Write(path);
 }
 
-RglAccuracy MeasureRglAccuracy(const RglBsdf& file, const BrdfFunction& f, double theta_max_deg, double step_deg,
-                               double threshold, double theta_o_max_deg) {
+namespace {
+
+// The measure at theta_i = first, first + step .. up to last (degrees).
+RglAccuracy MeasureOver(const RglBsdf& file, const BrdfFunction& f, double first, double last, double step_deg,
+                        double threshold, double theta_o_max_deg) {
   const double deg = kPi / 180;
   std::vector<std::array<double, 2>> incident;  // (theta_i, phi_i) in degrees
-  for (double ti = step_deg / 2; ti <= theta_max_deg; ti += step_deg)
+  // Counted steps (no drift); 1e-3 degrees of slack keeps a node at `last`
+  // (a file stores its slices' angles in float radians).
+  for (int k = 0; first + k * step_deg <= last + 1e-3; ++k)
     for (double pi = 0; pi < 360; pi += 50) {
-      incident.push_back({ti, pi});
+      incident.push_back({first + k * step_deg, pi});
       if (file.isotropic) break;
     }
   RglAccuracy acc;
@@ -506,6 +511,20 @@ RglAccuracy MeasureRglAccuracy(const RglBsdf& file, const BrdfFunction& f, doubl
   std::sort(errors.begin(), errors.end());
   acc.p99_relative = errors[std::min(errors.size() - 1, static_cast<std::size_t>(0.99 * double(errors.size())))];
   return acc;
+}
+
+}  // namespace
+
+RglAccuracy MeasureRglAccuracy(const RglBsdf& file, const BrdfFunction& f, double theta_max_deg, double step_deg,
+                               double threshold, double theta_o_max_deg) {
+  return MeasureOver(file, f, step_deg / 2, theta_max_deg, step_deg, threshold, theta_o_max_deg);
+}
+
+RglAccuracy MeasureRglAccuracyTowardsGrazing(const RglBsdf& file, const BrdfFunction& f, double from_deg,
+                                             double step_deg) {
+  const double last = file.theta_i.empty() ? 0.0 : file.theta_i.back() * 180 / kPi;
+  // A file that ends before from_deg: its last slice alone.
+  return MeasureOver(file, f, std::min(from_deg, last), last, step_deg, 0.01, 90);
 }
 
 }  // namespace brdfkit::formats

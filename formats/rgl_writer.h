@@ -136,5 +136,11 @@ struct RglAccuracy {
 };
 RglAccuracy MeasureRglAccuracy(const RglBsdf& file, const BrdfFunction& f, double theta_max_deg = 80,
                                double step_deg = 2.5, double threshold = 0.01, double theta_o_max_deg = 90);
+// The same measure towards grazing incidence, where a file errs most:
+// theta_i from from_deg (or the last slice, if that comes first) to the
+// file's last slice in steps of step_deg (beyond it the format's readers
+// hold that slice).
+RglAccuracy MeasureRglAccuracyTowardsGrazing(const RglBsdf& file, const BrdfFunction& f, double from_deg = 80,
+                                             double step_deg = 0.25);
 
 }  // namespace brdfkit::formats
