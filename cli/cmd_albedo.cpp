@@ -145,7 +145,8 @@ void RegisterAlbedo(CLI::App& app) {
     req.quadrature.abs_tolerance = tolerance;
     req.quadrature.max_evals = budget;
     req.quadrature.part = validate::ParsePart(part);
-    req.quadrature.accepted_error = std::max(accept_error, tolerance);
+    const double accepted = std::max(accept_error, tolerance);
+    req.quadrature.accepted_error = accepted;
     req.channel = channel;
     if (!slice.empty()) {
       const std::size_t colon = slice.find(':');
@@ -160,7 +161,6 @@ void RegisterAlbedo(CLI::App& app) {
     const tbb::global_control limit(tbb::global_control::max_allowed_parallelism,
                                     static_cast<std::size_t>(ThreadCount(threads)));
     const validate::AlbedoTable t = validate::BuildAlbedoTable(m.model, m.params, req);
-    const double accepted = std::max(accept_error, tolerance);
     const std::vector<validate::AlbedoMiss> misses = validate::EntriesAboveTolerance(t, accepted);
     if (!misses.empty())
       throw ResultError(validate::DescribeMisses(misses, accepted) +
@@ -169,12 +169,7 @@ void RegisterAlbedo(CLI::App& app) {
     if (!csv.empty()) validate::WriteAlbedoCsv(t, csv);
     if (!exr.empty()) validate::WriteAlbedoExr(t, exr);
     if (!header.empty()) {
-      std::string p = prefix;
-      if (p.empty()) {
-        for (char c : m.model.Spec()) p += std::isalnum(static_cast<unsigned char>(c)) ? c : '_';
-        p += "_albedo";
-      }
-      validate::WriteAlbedoHeader(t, header, p);
+      validate::WriteAlbedoHeader(t, header, prefix.empty() ? AlbedoHeaderPrefix(m.model.Spec()) : prefix);
     }
     if (json) {
       const nlohmann::json j = AlbedoTableJson(t);

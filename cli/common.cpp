@@ -1,6 +1,7 @@
 #include "cli/common.h"
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <sstream>
@@ -90,6 +91,12 @@ nlohmann::json ModelInfoJson(const ModelInfo& info) {
                       {"energy_conserving", info.energy_conserving}};
   if (!info.settings.empty()) j["settings"] = info.settings;
   return j;
+}
+
+std::string AlbedoHeaderPrefix(const std::string& name) {
+  std::string p = !name.empty() && std::isdigit(static_cast<unsigned char>(name[0])) ? "m_" : "";
+  for (char c : name) p += std::isalnum(static_cast<unsigned char>(c)) ? c : '_';
+  return p + "_albedo";
 }
 
 }  // namespace brdfkit::cli

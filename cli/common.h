@@ -52,6 +52,11 @@ LoadedModel LoadModel(const ModelArgs& args);
 // "x,y,z" (normalised) or, with degrees = true, "theta,phi" in degrees.
 Eigen::Vector3d ParseDirection(const std::string& text, bool degrees, const std::string& option);
 
+// The prefix of an albedo header's arrays named after `name` (a model
+// specification or a material): name_albedo as a C identifier, other
+// characters '_', "m_" before a leading digit.
+std::string AlbedoHeaderPrefix(const std::string& name);
+
 nlohmann::json ModelInfoJson(const ModelInfo& info);
 // The README's table of registered models (`brdfkit models --markdown`).
 std::string ModelTableMarkdown();

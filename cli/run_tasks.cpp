@@ -234,19 +234,16 @@ TaskOutcome AlbedoTask::Run(const TaskSpec& spec, const RunContext& ctx) const {
   req.rule = t.gauss_nodes ? validate::NodeRule::kGauss : validate::NodeRule::kUniform;
   req.quadrature.abs_tolerance = t.tolerance;
   req.quadrature.part = validate::ParsePart(t.part);
-  req.quadrature.accepted_error = std::max(t.accept_error, t.tolerance);
+  const double accepted = std::max(t.accept_error, t.tolerance);
+  req.quadrature.accepted_error = accepted;
   ThreadedProgress progress("albedo " + spec.name, ctx.quiet);
   req.progress = progress.Callback();
   const validate::AlbedoTable table = validate::BuildAlbedoTable(model, lm.params, req);
   progress.Finish();
-  const double accepted = std::max(t.accept_error, t.tolerance);
   const std::vector<validate::AlbedoMiss> misses = validate::EntriesAboveTolerance(table, accepted);
   if (!misses.empty())
     throw ResultError("task '" + spec.name + "': " + validate::DescribeMisses(misses, accepted) + "\n" +
-                      (table.params.empty() ? "Loosen \"tolerance\" (a measured table's interpolation keeps its "
-                                              "integrals from converging much below 1e-4: 1e-3)"
-                                            : "Narrow the parameter range in \"axes\"") +
-                      " or set \"accept_error\".");
+                      validate::MissAdvice(table, "\"tolerance\": 1e-3") + ", or set \"accept_error\".");
   for (const std::string& f : t.formats) {
     if (f == "csv") {
       validate::WriteAlbedoCsv(table, dir.Abs("albedo.csv"));
@@ -256,11 +253,8 @@ TaskOutcome AlbedoTask::Run(const TaskSpec& spec, const RunContext& ctx) const {
       validate::WriteAlbedoExr(table, dir.Abs("albedo.exr"));
       o.files.push_back(dir.Rel("albedo.exr"));
     } else if (f == "header") {
-      // The material's name or the model's, as a C identifier.
-      std::string prefix = std::isdigit(static_cast<unsigned char>(t.material[0])) ? "m_" : "";
-      for (char c : t.material.empty() ? model.Spec() : t.material)
-        prefix += std::isalnum(static_cast<unsigned char>(c)) ? c : '_';
-      validate::WriteAlbedoHeader(table, dir.Abs("albedo.h"), prefix + "_albedo");
+      validate::WriteAlbedoHeader(table, dir.Abs("albedo.h"),
+                                  AlbedoHeaderPrefix(t.material.empty() ? model.Spec() : t.material));
       o.files.push_back(dir.Rel("albedo.h"));
     }
   }

@@ -196,6 +196,11 @@ Model ParseModelAt(SceneReader& r, const std::string& key) {
   }
 }
 
+// Throws (ModelError) unless every parameter axis after mu names a parameter of info.
+void CheckAxisParameters(const ModelInfo& info, const std::vector<validate::AxisSpec>& axes) {
+  for (std::size_t i = 1; i < axes.size(); ++i) validate::AxisParameter(info, axes[i].name);
+}
+
 const std::set<std::string> kSynthFormats = {"csv", "binary", "exr"};
 const std::set<std::string> kAlbedoFormats = {"csv", "exr", "header"};
 
@@ -392,8 +397,7 @@ void AlbedoTask::Parse(SceneReader& r, const Scene& s) {
       throw std::runtime_error("give mu alone or mu and one or two parameters, e.g. mu:32,alpha:32");
     if (measured && axes.size() > 1)
       throw std::runtime_error("'" + t.material + "' is measured data, which has no parameters: give mu alone, e.g. mu:32");
-    if (model)
-      for (std::size_t i = 1; i < axes.size(); ++i) validate::AxisParameter(model->Info(), axes[i].name);
+    if (model) CheckAxisParameters(model->Info(), axes);
   } catch (const std::exception& e) {
     r.FailKey("axes", e.what());
   }
@@ -643,9 +647,8 @@ Scene ParseScene(const std::string& text, const std::string& origin, const std::
     const AlbedoTask* a = s.tasks[k].As<AlbedoTask>();
     if (!a || a->material.empty() || s.materials.at(a->material).kind != MaterialSpec::Kind::kFit) continue;
     const Model fitted = Model::Parse(s.FindTask(s.materials.at(a->material).fit_task)->As<FitTask>()->model);
-    const auto axes = validate::ParseAxes(a->axes);
     try {
-      for (std::size_t i = 1; i < axes.size(); ++i) validate::AxisParameter(fitted.Info(), axes[i].name);
+      CheckAxisParameters(fitted.Info(), validate::ParseAxes(a->axes));
     } catch (const std::exception& e) {
       Fail(s.origin, "tasks[" + std::to_string(k) + "].axes", e.what());
     }

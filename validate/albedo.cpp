@@ -509,10 +509,10 @@ std::string DescribeMisses(const std::vector<AlbedoMiss>& misses, double toleran
   return s.str();
 }
 
-std::string MissAdvice(const AlbedoTable& table) {
+std::string MissAdvice(const AlbedoTable& table, const std::string& looser_tolerance) {
   return table.params.empty()
              ? "Ask for a looser tolerance (a measured table's interpolation keeps its integrals from converging "
-               "much below 1e-4: --tolerance 1e-3)"
+               "much below 1e-4: " + looser_tolerance + ")"
              : "Narrow the parameter range (an alpha axis such as alpha:32:0.001:1)";
 }
 

@@ -209,8 +209,9 @@ std::vector<AlbedoMiss> EntriesAboveTolerance(const AlbedoTable& table, double t
 // "N table entries miss the error tolerance T:" and the `shown` worst, one a line.
 std::string DescribeMisses(const std::vector<AlbedoMiss>& misses, double tolerance, std::size_t shown = 8);
 // What to change when entries miss: the parameter range, or (a table without
-// parameter axes, such as a measured table's) the tolerance.
-std::string MissAdvice(const AlbedoTable& table);
+// parameter axes, such as a measured table's) the tolerance, written as the
+// caller takes it (looser_tolerance: "--tolerance 1e-3", "tolerance=1e-3").
+std::string MissAdvice(const AlbedoTable& table, const std::string& looser_tolerance = "--tolerance 1e-3");
 
 // Writers (atomic: a failure leaves no file behind).
 // CSV: "mu,<p1>[,<p2>],E" and beside it <stem>_avg.csv "<p1>[,<p2>],E_avg".

@@ -75,20 +75,20 @@ py::dict AlbedoTableFn(const py::object& model, const py::object& params, const 
   req.quadrature.abs_tolerance = tolerance;
   req.quadrature.max_evals = albedo_budget;
   req.quadrature.part = validate::ParsePart(part);
-  req.quadrature.accepted_error = std::max(accept_error, tolerance);
+  // The tables' contract, as the command line: no table above its tolerance
+  // unless a looser one is accepted explicitly.
+  const double accepted = std::max(accept_error, tolerance);
+  req.quadrature.accepted_error = accepted;
   req.channel = channel;
   validate::AlbedoTable t;
   RunTool(m, threads, [&](const CancelToken& token) {
     req.progress = [&token](std::size_t, std::size_t) { token.ThrowIfCancelled(); };
     t = validate::BuildAlbedoTable(*m.bxdf, m.spec, m.params, req);
   });
-  // The tables' contract, as the command line: no table above its tolerance
-  // unless a looser one is accepted explicitly.
-  const double accepted = std::max(accept_error, tolerance);
   const std::vector<validate::AlbedoMiss> misses = validate::EntriesAboveTolerance(t, accepted);
   if (!misses.empty())
-    throw ArgumentError(validate::DescribeMisses(misses, accepted) +
-                        "\n" + validate::MissAdvice(t) + ", or accept a looser table with accept_error=.");
+    throw ArgumentError(validate::DescribeMisses(misses, accepted) + "\n" + validate::MissAdvice(t, "tolerance=1e-3") +
+                        ", or accept a looser table with accept_error=.");
   return ToPython(cli::AlbedoTableJson(t));
 }
 
