@@ -183,8 +183,11 @@ std::string AlbedoHtml(const json& r) {
   for (const json& a : r.at("axes"))
     axes += (axes.empty() ? "" : ", ") + Esc(a.at("name").get<std::string>()) + " (" +
             std::to_string(a.at("nodes").size()) + " nodes)";
-  return "<p>" + Esc(r.at("model").get<std::string>()) + ": " + std::to_string(r.at("entries").get<long long>()) +
-         " entries over mu (" + std::to_string(r.at("mu").size()) + " nodes) and " + axes +
+  const std::string of = r.contains("material") ? "material '" + Esc(r.at("material").get<std::string>()) + "' (" +
+                                                       Esc(r.at("model").get<std::string>()) + ")"
+                                                 : Esc(r.at("model").get<std::string>());
+  return "<p>" + of + ": " + std::to_string(r.at("entries").get<long long>()) + " entries over mu (" +
+         std::to_string(r.at("mu").size()) + " nodes)" + (axes.empty() ? "" : " and " + axes) +
          "; largest quadrature error estimate " + Num(r.at("max_error"), "%.2g") + ", grazing-limit error " +
          Num(r.at("limit_error"), "%.2g") + ".</p>";
 }

@@ -329,6 +329,8 @@ TEST(Run, AlbedoTasksTabulateTheScenesMaterials) {
   EXPECT_NE(ReadText(d / "out" / "e_lam" / "albedo.h").find("lam_albedo"), std::string::npos);
   EXPECT_TRUE(fs::exists(d / "out" / "e_lam" / "E.svg"));
   EXPECT_FALSE(fs::exists(d / "out" / "e_lam" / "E_avg.svg"));
+  EXPECT_NE(ReadText(d / "out" / "report.html").find("material 'lam' (utia): 5 entries over mu (5 nodes); largest"),
+            std::string::npos);
   EXPECT_EQ(ReadText(d / "out" / "e_plastic" / "albedo.csv"), ReadText(d / "out" / "e_model" / "albedo.csv"));
   EXPECT_EQ(by_name.at("e_plastic").at("result").at("E_avg"), by_name.at("e_model").at("result").at("E_avg"));
   const json& fitted = by_name.at("e_fitted").at("result");

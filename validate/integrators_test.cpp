@@ -454,6 +454,23 @@ TEST(Plot, WritesSvgFilesAtomically) {
   fs::remove_all(dir);
 }
 
+// Values equal to rounding (a lambert table's E, 0.4 within 4e-16) get an
+// axis half a unit either side, labelled 0.0 .. 0.8, not ticks that all
+// read 4.000 over a span of 1e-16.
+TEST(Plot, FlatDataGetsAReadableAxis) {
+  namespace fs = std::filesystem;
+  const fs::path dir = test::FreshDir("plot-flat");
+  LinePlot((dir / "flat.svg").string(), "E", "mu", "E", {Series{"E", {0, 0.5, 1}, {0.4, 0.4 + 4e-16, 0.4 - 5e-17}}},
+           false, false);
+  std::ifstream in(dir / "flat.svg");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  // PLplot writes each label's characters as entities: "0.4" and "4.000".
+  EXPECT_NE(ss.str().find("&#x30;&#x2e;&#x34;</tspan>"), std::string::npos);
+  EXPECT_EQ(ss.str().find("&#x34;&#x2e;&#x30;&#x30;&#x30;"), std::string::npos);
+  fs::remove_all(dir);
+}
+
 // --- the convergence command --------------------------------------------------------
 
 TEST(ConvergenceCommand, QuickRunWritesCsvPlotAndSummary) {

@@ -147,7 +147,9 @@ void Range(const std::vector<double>& v, bool log_axis, double& lo, double& hi) 
     hi = std::max(std::ceil(hi), lo + 1);
     return;
   }
-  if (!(hi > lo)) {
+  // Flat data (a spread within rounding, 1e-9 of the values) would give an
+  // axis whose ticks all read the same: half a unit either side instead.
+  if (!(hi - lo > 1e-9 * std::max(std::abs(lo), std::abs(hi)))) {
     lo -= 0.5;
     hi += 0.5;
   }
